@@ -1,0 +1,97 @@
+"""The Method interface: one small contract that every model, built-in or plugin, fulfils."""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any, ClassVar, Mapping, Sequence
+
+import numpy as np
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+
+FAMILIES = ("physical", "data-driven", "hybrid", "baseline")
+
+Params = Mapping[str, Any]
+SearchSpace = dict[str, np.ndarray]
+"""Hyperparameter name -> candidate values; model selection searches their product."""
+
+
+def log_grid(low_exp: float, high_exp: float, num: int) -> np.ndarray:
+    """``num`` values from 10**low_exp to 10**high_exp, evenly spaced in the exponent."""
+    return np.logspace(low_exp, high_exp, num)
+
+
+def grid_points(space: SearchSpace) -> list[dict[str, Any]]:
+    """Every point of the product grid, in a fixed order (last name varies fastest)."""
+    names = list(space)
+    return [dict(zip(names, values)) for values in itertools.product(*(space[n] for n in names))]
+
+
+class Method:
+    """Base class of every method.
+
+    Subclasses set ``name``, ``family`` and ``modes`` and implement ``fit`` and
+    ``predict``. ``fit`` sees training samples with targets; ``predict`` sees samples
+    whose targets were removed, so a method cannot peek at what it must predict.
+    Options that are not searched (switches, fixed settings) are constructor keywords.
+    """
+
+    name: ClassVar[str] = ""
+    family: ClassVar[str] = "data-driven"
+    modes: ClassVar[frozenset[str]] = frozenset({"static", "window"})
+    summary: ClassVar[str] = ""
+
+    def __init__(self, **options: Any) -> None:
+        unknown = set(options) - set(self.default_options())
+        if unknown:
+            raise MethodError(
+                f"method {self.name!r}: unknown option(s) {', '.join(sorted(unknown))}; "
+                f"known: {', '.join(sorted(self.default_options())) or 'none'}"
+            )
+        self.options = {**self.default_options(), **options}
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {}
+
+    def search_space(self, data: Samples) -> SearchSpace:
+        """Candidate hyperparameters; an empty space means nothing to select."""
+        return {}
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> Any:
+        raise NotImplementedError
+
+    def predict(self, fitted: Any, data: Samples) -> list[np.ndarray]:
+        """One (n_rows, n_targets) array per segment of ``data``, aligned with its rows."""
+        raise NotImplementedError
+
+    def describe(self, fitted: Any) -> dict[str, Any]:
+        """Interpretable artefacts of a fitted model (selected parameters, equations...)."""
+        return {}
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Predictions of ``data`` for every grid point, shape (n_grid, n_rows, n_targets).
+
+        The default fits each point in turn; methods that share work across the grid
+        (one eigendecomposition for all regularisation values) override it.
+        """
+        out = []
+        for params in grid:
+            fitted = self.fit(train, params, rng)
+            out.append(np.concatenate(self.predict(fitted, data)))
+        return np.stack(out)
+
+    def check_mode(self, mode: str) -> None:
+        if mode not in self.modes:
+            raise MethodError(
+                f"method {self.name!r} does not support mode {mode!r}; it supports {', '.join(sorted(self.modes))}"
+            )
+
+
+def split_rows(values: np.ndarray, data: Samples) -> list[np.ndarray]:
+    """Cut stacked predictions back into one array per segment of ``data``."""
+    sizes = np.cumsum([len(s) for s in data.segments])[:-1]
+    return np.split(values, sizes)

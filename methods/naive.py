@@ -1,0 +1,51 @@
+"""Naive baselines that every table carries, so "worse than a constant" stays visible."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Method, Params
+
+
+class NaiveMean(Method):
+    """Predicts the training mean of each target."""
+
+    name = "naive-mean"
+    family = "baseline"
+    modes = frozenset({"static", "window", "simulation"})
+    summary = "training mean of the target"
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> np.ndarray:
+        return train.y.mean(axis=0)
+
+    def predict(self, fitted: np.ndarray, data: Samples) -> list[np.ndarray]:
+        return [np.broadcast_to(fitted, (len(s), fitted.size)).copy() for s in data.segments]
+
+    def describe(self, fitted: np.ndarray) -> dict[str, Any]:
+        return {"mean": fitted.tolist()}
+
+
+class NaiveLast(Method):
+    """Last-value persistence: y(t) is predicted by the measured y(t - dt) (window mode)."""
+
+    name = "naive-last"
+    family = "baseline"
+    modes = frozenset({"window"})
+    summary = "persistence: the last measured output y(t-dt)"
+
+    def _columns(self, data: Samples) -> list[int]:
+        if data.lags < 1:
+            raise MethodError("naive-last needs mode 'window' with a window of at least one sample period")
+        return [data.feature_index(f"{name}[t-1]") for name in data.target_names]
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> None:
+        self._columns(train)
+        return None
+
+    def predict(self, fitted: None, data: Samples) -> list[np.ndarray]:
+        cols = self._columns(data)
+        return [s.X[:, cols].copy() for s in data.segments]
