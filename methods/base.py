@@ -95,3 +95,19 @@ def split_rows(values: np.ndarray, data: Samples) -> list[np.ndarray]:
     """Cut stacked predictions back into one array per segment of ``data``."""
     sizes = np.cumsum([len(s) for s in data.segments])[:-1]
     return np.split(values, sizes)
+
+
+class SegmentPredictions(list):
+    """Per-segment predictions plus a per-segment ``diverged`` flag.
+
+    Simulating methods return this from ``predict`` so that a trajectory that left its
+    bounded envelope or went non-finite is counted and reported, never silently dropped.
+    A diverged segment's array still holds what was simulated (held at the envelope
+    where it left it), so raw means stay computable.
+    """
+
+    def __init__(self, arrays: Sequence[np.ndarray], diverged: Sequence[bool] | None = None) -> None:
+        super().__init__(arrays)
+        self.diverged = np.zeros(len(self), dtype=bool) if diverged is None else np.asarray(diverged, dtype=bool)
+        if self.diverged.shape != (len(self),):
+            raise ValueError("one diverged flag per segment is required")
