@@ -29,3 +29,25 @@ class PhysicalModel(Protocol):
     def simulate(self, params: Mapping[str, Any], segment: Signals, dt: float) -> dict[str, np.ndarray]:
         """Predicted outputs over one segment, one array per name in ``outputs``."""
         ...
+
+
+_KNOWN: dict[str, str] = {
+    # name -> "module:factory"; modules are imported only when a dataset asks for them
+    "gas-turbine-tat": "enginebench.datasets.gas_turbine.physics:TATExpansionModel",
+    "marine-diesel-pm": "enginebench.datasets.marine_diesel.pm:MarineDieselPM",
+}
+
+
+def get_physical_model(name: str) -> PhysicalModel | None:
+    """The physical model a dataset declares by name, or None where it is not available."""
+    import importlib
+
+    target = _KNOWN.get(name)
+    if target is None:
+        return None
+    module, attr = target.split(":")
+    try:
+        factory = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError):
+        return None
+    return factory()

@@ -1,0 +1,46 @@
+"""``enginebench methods``: what methods are available and what they take."""
+
+from __future__ import annotations
+
+import click
+
+from enginebench.cli.options import load_plugins, plugin_option
+
+
+@click.group()
+def methods() -> None:
+    """List and describe methods (built-in, installed plugins, --plugin files)."""
+
+
+@methods.command("list")
+@plugin_option
+def methods_list(plugins) -> None:
+    """One line per method: name, family, supported modes, summary."""
+    from enginebench.methods.registry import available
+
+    load_plugins(plugins)
+    for name, cls in available().items():
+        click.echo(f"{name:<14} {cls.family:<12} {','.join(sorted(cls.modes)):<24} {cls.summary}")
+
+
+@methods.command("show")
+@click.argument("name")
+@plugin_option
+def methods_show(name: str, plugins) -> None:
+    """Family, modes, options with defaults, and the docstring of method NAME."""
+    import inspect
+
+    from enginebench.methods.registry import get
+
+    load_plugins(plugins)
+    cls = get(name)
+    click.echo(f"{cls.name}  ({cls.family}; modes: {', '.join(sorted(cls.modes))})")
+    click.echo(f"class: {cls.__module__}.{cls.__qualname__}")
+    doc = inspect.getdoc(cls)
+    if doc:
+        click.echo("\n" + doc)
+    opts = cls.default_options()
+    if opts:
+        click.echo("\noptions (set them in the experiment's [methods." + cls.name + "] table):")
+        for k, v in opts.items():
+            click.echo(f"  {k} = {v!r}")

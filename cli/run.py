@@ -1,0 +1,61 @@
+"""``enginebench run``: run an experiment and print its comparison table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from enginebench.cli.options import load_plugins, plugin_option, store_option
+
+
+@click.command()
+@click.argument("experiment")
+@click.option("--repeats", type=click.IntRange(min=1), default=None, help="Repetitions (overrides the experiment).")
+@click.option("--methods", default=None, help="Comma-separated methods to run (overrides the experiment).")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Base seed (overrides the experiment).")
+@click.option("--train-size", type=click.IntRange(min=0), default=None, help="Training subsample size (0 = all rows).")
+@click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores].")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@store_option
+@plugin_option
+def run(experiment: str, repeats, methods, seed, train_size, workers, quiet, store, plugins) -> None:
+    """Run EXPERIMENT (a built-in name or a .toml file) and store it as a run.
+
+    Every finished job is written to the run store at once, so an interrupted run keeps
+    what it finished. The comparison table is printed at the end; `enginebench table RUN`
+    prints it again in other formats.
+    """
+    from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.spec import load_spec
+    from enginebench.results.store import RunStore
+    from enginebench.results.tables import summarize, to_rich
+
+    load_plugins(plugins)
+    spec = load_spec(experiment)
+    overrides = {"repetitions": repeats, "seed": seed, "train_size": train_size}
+    if methods:
+        overrides["methods"] = [m.strip() for m in methods.split(",") if m.strip()]
+        overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
+    spec = spec.with_overrides(**overrides)
+    console = Console(stderr=True)
+    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=quiet, transient=False)
+    with progress:
+        task = progress.add_task(f"{spec.name}: preparing", total=None)
+
+        def tick(done: int, total: int, job) -> None:
+            progress.update(task, completed=done, total=total,
+                            description=f"{spec.name}: {job.method} r{job.repetition}")
+
+        result = run_experiment(spec, RunStore(store), workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
+                                progress=tick)
+        progress.update(task, description=f"{spec.name}: done")
+    summary = summarize(result.run.metrics(), interval=spec.interval)
+    out = Console()
+    out.print(to_rich(summary, title=f"{spec.name} ({spec.dataset}, {spec.mode})"))
+    if result.n_failed:
+        out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench table {result.run.id}' counts them (n_failed).[/yellow]")
+    out.print(f"run {result.run.id} stored in {result.run.path}")

@@ -1,0 +1,72 @@
+"""Model selection inside one repetition, on training data only.
+
+Bootstrap (iid resamples, scored on the out-of-bag rows, as the diesel seed) or blocked
+k-fold (contiguous blocks in time order). Every method is asked for predictions of a whole
+grid at once, so methods that share work across the grid (one eigendecomposition for
+all regularisation values) do it once per resample.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from enginebench.datasets.samples import Samples
+from enginebench.datasets.splits import blocked_folds
+from enginebench.errors import MethodError
+from enginebench.experiments.spec import Selection
+from enginebench.methods.base import Method, grid_points
+
+
+def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.ndarray:
+    """Score every grid point: (n_grid, n_rows, k) predictions of ``data`` -> (n_grid,).
+
+    ``mae`` pools rows; ``rmae`` averages each segment's MAE (the training-scale divisor
+    of RMAE is common to all grid points, so it does not change the ranking).
+    Non-finite predictions score +inf.
+    """
+    err = np.abs(predictions - data.y[None])
+    if criterion == "mae":
+        score = err.mean(axis=(1, 2))
+    else:
+        sizes = [len(s) for s in data.segments]
+        edges = np.r_[0, np.cumsum(sizes)]
+        per_seg = np.stack([err[:, a:b].mean(axis=(1, 2)) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+        score = per_seg.mean(axis=1)
+    return np.where(np.isfinite(score), score, np.inf)
+
+
+def resample_pairs(n: int, selection: Selection, rng: np.random.Generator) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(fit rows, validation rows) pairs for the selection scheme."""
+    if selection.kind == "kfold":
+        return blocked_folds(n, selection.folds)
+    pairs = []
+    for _ in range(selection.resamples):
+        fit = rng.integers(0, n, n)
+        oob = np.setdiff1d(np.arange(n), fit)
+        if oob.size:
+            pairs.append((np.sort(fit), oob))
+    return pairs
+
+
+def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The best grid point for ``method`` on ``train`` and a record of the search."""
+    grid = grid_points(method.search_space(train))
+    if not grid:
+        return {}, {"grid_size": 0}
+    if len(grid) == 1 or selection.kind == "none":
+        return grid[0], {"grid_size": len(grid)}
+    total = np.zeros(len(grid))
+    pairs = resample_pairs(len(train), selection, rng)
+    if not pairs:
+        raise MethodError(f"model selection for {method.name!r}: no usable resample (training set of {len(train)} rows)")
+    for fit_rows, val_rows in pairs:
+        fit_part, val_part = train.take(fit_rows), train.take(val_rows)
+        preds = method.predict_grid(fit_part, val_part.without_targets(), grid, rng)
+        total += grid_scores(preds, val_part, selection.criterion)
+    mean = total / len(pairs)
+    if not np.isfinite(mean).any():
+        raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
+    best = int(np.argmin(mean))
+    return grid[best], {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(pairs)}

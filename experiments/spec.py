@@ -1,0 +1,197 @@
+"""Experiment specs: a TOML file (or a built-in name) resolved into a complete, hashable config.
+
+Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
+
+    name = "gas-turbine-nox"
+    dataset = "gas-turbine-emissions"   # built-in name, .parquet file or .toml import spec
+    targets = ["NOX"]
+    mode = "static"                     # static | window | simulation
+    windows = [0]                       # Delta in seconds (window mode)
+    methods = ["naive-mean", "krls"]
+    repetitions = 30
+    seed = 0
+    train_size = 1000                   # training subsample per repetition; 0 = all rows
+    interval = "t"                      # t | bootstrap (percentile)
+    roles = { TAT = "input" }           # change column roles for this experiment
+
+    [split]                             # kind = published | holdout | rolling | groups
+    kind = "published"
+
+    [selection]                         # kind = bootstrap | kfold | none
+    kind = "bootstrap"
+    resamples = 5
+    folds = 5
+    criterion = "mae"                   # mae | rmae
+
+    [methods.krls]                      # constructor options of a method
+    gamma_grid = [-4, 4, 41]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from enginebench.datasets.samples import MODES
+from enginebench.datasets.splits import SPLIT_KINDS
+from enginebench.errors import SpecError
+
+SELECTION_KINDS = ("bootstrap", "kfold", "none")
+CRITERIA = ("mae", "rmae")
+INTERVALS = ("t", "bootstrap")
+
+TOP_KEYS = {
+    "name", "description", "dataset", "dataset_variant", "targets", "mode", "windows", "methods", "repetitions",
+    "seed", "train_size", "interval", "roles", "split", "selection", "method_options",
+}
+
+
+@dataclass(frozen=True)
+class Selection:
+    kind: str = "bootstrap"
+    resamples: int = 5
+    folds: int = 5
+    criterion: str = "mae"
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """A fully resolved experiment: what to run, on what, and how to evaluate it."""
+
+    name: str
+    dataset: str
+    targets: tuple[str, ...]
+    methods: tuple[str, ...]
+    mode: str = "static"
+    windows: tuple[float, ...] = (0.0,)
+    repetitions: int = 30
+    seed: int = 0
+    train_size: int = 1000
+    interval: str = "t"
+    roles: dict[str, str] = field(default_factory=dict)
+    split: dict[str, Any] = field(default_factory=lambda: {"kind": "published"})
+    selection: Selection = Selection()
+    method_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    description: str = ""
+    dataset_variant: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["targets"], d["methods"], d["windows"] = list(self.targets), list(self.methods), list(self.windows)
+        return d
+
+    def config_hash(self) -> str:
+        """Hash of everything that determines the results (the name and description excluded)."""
+        d = self.to_dict()
+        d.pop("name"), d.pop("description")
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
+
+    def with_overrides(self, **changes: Any) -> "ExperimentSpec":
+        d = self.to_dict()
+        d.update({k: v for k, v in changes.items() if v is not None})
+        d["selection"] = d["selection"] if isinstance(d["selection"], dict) else asdict(d["selection"])
+        return from_dict(d, origin="command-line overrides")
+
+
+def _expect(cond: bool, origin: str, message: str) -> None:
+    if not cond:
+        raise SpecError(f"{origin}: {message}")
+
+
+def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None = None) -> ExperimentSpec:
+    """Validate a spec dict (from TOML) and fill in defaults."""
+    raw = dict(raw)
+    if "methods" in raw and isinstance(raw["methods"], dict):
+        # [methods.NAME] tables give options; the method list then comes from 'run' or the table keys
+        options = raw.pop("methods")
+        raw.setdefault("method_options", {}).update(options)
+        raw["methods"] = raw.pop("run", list(options))
+    unknown = set(raw) - TOP_KEYS - {"run"}
+    _expect(not unknown, origin, f"unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}")
+    for key in ("dataset", "targets", "methods"):
+        _expect(key in raw, origin, f"missing required key {key!r}")
+    name = str(raw.get("name", Path(origin).stem))
+    dataset = raw["dataset"]
+    _expect(isinstance(dataset, str) and dataset, origin, "'dataset' must be a dataset name or a file path")
+    if base_dir is not None and Path(dataset).suffix in (".parquet", ".toml") and not Path(dataset).is_absolute():
+        dataset = str((base_dir / dataset).resolve())
+    targets = raw["targets"]
+    targets = [targets] if isinstance(targets, str) else targets
+    _expect(isinstance(targets, list) and targets and all(isinstance(t, str) for t in targets), origin,
+            "'targets' must be a non-empty list of column names")
+    methods = raw["methods"]
+    methods = [methods] if isinstance(methods, str) else methods
+    _expect(isinstance(methods, list) and methods and all(isinstance(m, str) for m in methods), origin,
+            "'methods' must be a non-empty list of method names")
+    _expect(len(set(methods)) == len(methods), origin, "'methods' lists a method twice")
+    mode = raw.get("mode", "static")
+    _expect(mode in MODES, origin, f"mode {mode!r} is not one of {', '.join(MODES)}")
+    windows = raw.get("windows", [0])
+    windows = [windows] if isinstance(windows, (int, float)) else windows
+    _expect(isinstance(windows, list) and windows and all(isinstance(w, (int, float)) and w >= 0 for w in windows),
+            origin, "'windows' must be a list of non-negative numbers of seconds")
+    _expect(mode == "window" or all(w == 0 for w in windows), origin, f"windows > 0 need mode = 'window' (mode is {mode!r})")
+    reps = raw.get("repetitions", 30)
+    _expect(isinstance(reps, int) and reps >= 1, origin, f"'repetitions' must be an integer >= 1, got {reps!r}")
+    seed = raw.get("seed", 0)
+    _expect(isinstance(seed, int) and seed >= 0, origin, f"'seed' must be a non-negative integer, got {seed!r}")
+    train_size = raw.get("train_size", 1000)
+    _expect(isinstance(train_size, int) and train_size >= 0, origin, f"'train_size' must be an integer >= 0, got {train_size!r}")
+    interval = raw.get("interval", "t")
+    _expect(interval in INTERVALS, origin, f"interval {interval!r} is not one of {', '.join(INTERVALS)}")
+    roles = raw.get("roles", {})
+    _expect(isinstance(roles, dict), origin, "'roles' must be a table of column = role")
+    split = dict(raw.get("split", {"kind": "published"}))
+    split.setdefault("kind", "published")
+    _expect(split["kind"] in SPLIT_KINDS, origin, f"split kind {split['kind']!r} is not one of {', '.join(SPLIT_KINDS)}")
+    sel_raw = raw.get("selection", {})
+    _expect(isinstance(sel_raw, dict), origin, "'selection' must be a table")
+    unknown = set(sel_raw) - {"kind", "resamples", "folds", "criterion"}
+    _expect(not unknown, origin, f"[selection]: unknown key(s) {', '.join(sorted(unknown))}; allowed: kind, resamples, folds, criterion")
+    selection = Selection(**sel_raw)
+    _expect(selection.kind in SELECTION_KINDS, origin, f"selection kind {selection.kind!r} is not one of {', '.join(SELECTION_KINDS)}")
+    _expect(selection.criterion in CRITERIA, origin, f"selection criterion {selection.criterion!r} is not one of {', '.join(CRITERIA)}")
+    _expect(isinstance(selection.resamples, int) and selection.resamples >= 1, origin, "selection resamples must be an integer >= 1")
+    _expect(isinstance(selection.folds, int) and selection.folds >= 2, origin, "selection folds must be an integer >= 2")
+    method_options = raw.get("method_options", {})
+    _expect(isinstance(method_options, dict) and all(isinstance(v, dict) for v in method_options.values()),
+            origin, "[methods.NAME] entries must be tables of options")
+    stray = set(method_options) - set(methods)
+    _expect(not stray, origin, f"options given for method(s) not run: {', '.join(sorted(stray))}")
+    return ExperimentSpec(
+        name=name, dataset=dataset, targets=tuple(targets), methods=tuple(methods), mode=mode,
+        windows=tuple(float(w) for w in windows), repetitions=reps, seed=seed, train_size=train_size,
+        interval=interval, roles=dict(roles), split=split, selection=selection,
+        method_options={k: dict(v) for k, v in method_options.items()},
+        description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
+    )
+
+
+def builtin_names() -> list[str]:
+    folder = resources.files("enginebench.experiments") / "builtin"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_spec(ref: str | Path) -> ExperimentSpec:
+    """Load an experiment by built-in name or TOML path."""
+    path = Path(ref)
+    if path.suffix != ".toml":
+        if str(ref) not in builtin_names():
+            raise SpecError(f"unknown experiment {str(ref)!r}; built-ins: {', '.join(builtin_names())} (or give a .toml file)")
+        text = (resources.files("enginebench.experiments") / "builtin" / f"{ref}.toml").read_text()
+        origin, base = f"built-in experiment {ref}", None
+    else:
+        if not path.is_file():
+            raise SpecError(f"{path}: experiment file not found")
+        text, origin, base = path.read_text(), str(path), path.parent
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{origin}: invalid TOML: {exc}") from None
+    raw.setdefault("name", path.stem)
+    return from_dict(raw, origin=origin, base_dir=base)

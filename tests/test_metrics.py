@@ -1,0 +1,254 @@
+"""Point metrics against hand-computed values, scikit-learn and scipy references."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.stats
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from sklearn.metrics import (
+    mean_absolute_error,
+    mean_absolute_percentage_error,
+    mean_squared_error,
+    r2_score,
+)
+
+from enginebench.errors import DataError
+from enginebench.results.metrics import (
+    METRICS,
+    compute_metrics,
+    mae,
+    mape,
+    ppmcc,
+    r2,
+    rmae,
+    rmse,
+    segment_rmae,
+    segment_summary,
+    skill,
+)
+
+
+@pytest.fixture
+def data() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(42)
+    y = 400.0 + 50.0 * rng.standard_normal(200)
+    p = y + 5.0 * rng.standard_normal(200) + 2.0
+    return y, p
+
+
+# ---------------------------------------------------------------- hand values
+
+def test_hand_computed_values() -> None:
+    y = [1.0, 2.0, 3.0]
+    p = [2.0, 2.0, 5.0]  # errors 1, 0, 2; SS_res = 5, SS_tot = 2
+    assert mae(y, p) == pytest.approx(1.0)
+    assert rmse(y, p) == pytest.approx(math.sqrt(5.0 / 3.0))
+    assert r2(y, p) == pytest.approx(-1.5)
+    assert mape(y, p) == pytest.approx((1.0 + 0.0 + 2.0 / 3.0) / 3.0 * 100.0)
+
+
+def test_against_sklearn(data: tuple[np.ndarray, np.ndarray]) -> None:
+    y, p = data
+    assert mae(y, p) == pytest.approx(mean_absolute_error(y, p), rel=1e-12)
+    assert rmse(y, p) == pytest.approx(math.sqrt(mean_squared_error(y, p)), rel=1e-12)
+    assert r2(y, p) == pytest.approx(r2_score(y, p), rel=1e-12)
+    # sklearn returns a fraction, ours is percent
+    assert mape(y, p) == pytest.approx(100.0 * mean_absolute_percentage_error(y, p), rel=1e-12)
+
+
+def test_ppmcc_against_scipy(data: tuple[np.ndarray, np.ndarray]) -> None:
+    y, p = data
+    assert ppmcc(y, p) == pytest.approx(scipy.stats.pearsonr(y, p).statistic, rel=1e-12)
+    assert ppmcc(y, -3.0 * y + 7.0) == pytest.approx(-1.0)
+    # large offset: centring must keep precision
+    assert ppmcc(y + 1e9, p + 1e9) == pytest.approx(scipy.stats.pearsonr(y, p).statistic, rel=1e-6)
+
+
+def test_ppmcc_constant_is_nan() -> None:
+    y = np.array([1.0, 2.0, 4.0])
+    assert math.isnan(ppmcc(y, np.full(3, 2.5)))
+    assert math.isnan(ppmcc(np.full(3, 2.5), y))
+
+
+def test_r2_constant_target_refused() -> None:
+    with pytest.raises(DataError, match=r"^R\^2 is undefined: target constant"):
+        r2([3.0, 3.0, 3.0], [1.0, 2.0, 3.0])
+
+
+# ---------------------------------------------------------------- validation
+
+def test_length_mismatch_message() -> None:
+    with pytest.raises(DataError) as exc:
+        mae([1.0, 2.0, 3.0], [1.0, 2.0])
+    assert str(exc.value) == (
+        "y_true and y_pred differ in length: 3 vs 2 rows; predict exactly one value per target row"
+    )
+
+
+def test_non_finite_names_row() -> None:
+    with pytest.raises(DataError, match=r"y_pred has 2 non-finite value\(s\), first at row 1 \(nan\)"):
+        rmse([1.0, 2.0, 3.0], [1.0, np.nan, np.inf])
+    with pytest.raises(DataError, match=r"y_true in segment 1 has 1 non-finite value\(s\), first at row 0"):
+        rmae([[1.0], [np.inf, 2.0]], [[1.0], [1.0, 2.0]], 1.0)
+
+
+def test_empty_and_2d_refused() -> None:
+    with pytest.raises(DataError, match="empty"):
+        mae([], [])
+    with pytest.raises(DataError, match=r"y_true must be a 1-D array, got shape \(2, 2\)"):
+        mae(np.ones((2, 2)), np.ones((2, 2)))
+
+
+# ---------------------------------------------------------------- MAPE refusal
+
+def test_mape_refusal_message_exact() -> None:
+    # 12 zeros among 100 targets whose mean |y| is 0.032: default floor = 3.2e-05
+    y = np.concatenate([np.zeros(12), np.full(88, 0.032 * 100 / 88)])
+    with pytest.raises(DataError) as exc:
+        mape(y, y + 0.01)
+    assert str(exc.value) == (
+        "MAPE is undefined: 12 target values are within 3.2e-05 of zero "
+        "(smallest |y| = 0.0); report MAE or RMAE instead"
+    )
+
+
+def test_mape_refusal_explicit_floor_and_relative_zero() -> None:
+    with pytest.raises(DataError) as exc:
+        mape([1.0, 2.0, -0.5], [1.0, 2.0, 0.0], floor=0.6)
+    assert str(exc.value) == (
+        "MAPE is undefined: 1 target value is within 0.6 of zero "
+        "(smallest |y| = 0.5); report MAE or RMAE instead"
+    )
+    # floor=0 leaves only the relative test |y| <= 1e-8 max|y|
+    with pytest.raises(DataError, match=r"1 target value is within 1e-08 of zero \(smallest \|y\| = 1e-12\)"):
+        mape([1.0, 1e-12], [1.0, 1.0], floor=0.0)
+    assert mape([1.0, 1e-3], [1.0, 2e-3], floor=0.0) == pytest.approx(50.0)
+    with pytest.raises(DataError, match="floor must be a finite number >= 0, got floor=-1.0"):
+        mape([1.0], [1.0], floor=-1.0)
+
+
+# ---------------------------------------------------------------- RMAE
+
+def test_rmae_two_segments_hand() -> None:
+    st_ = [np.full(4, 10.0), np.array([10.0])]
+    sp = [np.full(4, 11.0), np.array([15.0])]
+    # segment MAEs 1 and 5; pooled MAE (4*1 + 5)/5 = 1.8, segment-averaged 3.0
+    assert mae(np.concatenate(st_), np.concatenate(sp)) == pytest.approx(1.8)
+    np.testing.assert_allclose(segment_rmae(st_, sp, 10.0), [10.0, 50.0])
+    assert rmae(st_, sp, 10.0) == pytest.approx(30.0)
+
+
+def test_rmae_bad_inputs() -> None:
+    with pytest.raises(DataError, match="train_scale must be a positive finite number"):
+        rmae([[1.0]], [[1.0]], 0.0)
+    with pytest.raises(DataError, match="segments_true has 2 segments but segments_pred has 1"):
+        rmae([[1.0], [2.0]], [[1.0]], 1.0)
+    with pytest.raises(DataError, match="y_true and y_pred in segment 0 differ in length: 2 vs 1"):
+        segment_rmae([[1.0, 2.0]], [[1.0]], 1.0)
+
+
+def test_segment_summary_hand() -> None:
+    s = segment_summary([1.0, 2.0, 3.0, 4.0, 10.0])
+    assert s == pytest.approx({"mean": 4.0, "sd": math.sqrt(12.5), "median": 3.0, "iqr": 2.0})
+    assert math.isnan(segment_summary([2.0])["sd"])
+
+
+# ---------------------------------------------------------------- skill
+
+def test_skill() -> None:
+    assert skill(2.0, 4.0) == pytest.approx(0.5)
+    assert skill(4.0, 4.0) == 0.0
+    assert skill(0.0, 4.0) == 1.0
+    assert skill(8.0, 4.0) == pytest.approx(-1.0)
+    assert math.isnan(skill(float("nan"), 4.0))
+    with pytest.raises(DataError, match="metric_baseline=0.0"):
+        skill(1.0, 0.0)
+    with pytest.raises(DataError, match="metric_method=-0.5"):
+        skill(-0.5, 1.0)
+
+
+# ---------------------------------------------------------------- compute_metrics
+
+def test_compute_metrics_matches_parts(data: tuple[np.ndarray, np.ndarray]) -> None:
+    y, p = data
+    segs_t = [y[:20], y[20:150], y[150:]]
+    segs_p = [p[:20], p[20:150], p[150:]]
+    scale = 380.0
+    values, notes = compute_metrics(segs_t, segs_p, scale)
+    assert notes == {}
+    assert values["mae"] == pytest.approx(mean_absolute_error(y, p))
+    assert values["rmse"] == pytest.approx(math.sqrt(mean_squared_error(y, p)))
+    assert values["r2"] == pytest.approx(r2_score(y, p))
+    assert values["ppmcc"] == pytest.approx(scipy.stats.pearsonr(y, p).statistic)
+    assert values["mape"] == pytest.approx(100.0 * mean_absolute_percentage_error(y, p))
+    per_seg = np.array([mean_absolute_error(t, q) for t, q in zip(segs_t, segs_p)]) / scale * 100
+    assert values["rmae"] == pytest.approx(per_seg.mean())
+    assert values["rmae_seg_sd"] == pytest.approx(per_seg.std(ddof=1))
+    assert values["rmae_seg_median"] == pytest.approx(np.median(per_seg))
+    q75, q25 = np.percentile(per_seg, [75, 25])
+    assert values["rmae_seg_iqr"] == pytest.approx(q75 - q25)
+    assert values["n"] == 200 and values["n_segments"] == 3
+    # every reported metric is registered (n and n_segments are counts, not metrics)
+    assert set(values) - {"n", "n_segments"} == set(METRICS)
+
+
+def test_compute_metrics_undefined_become_nan_with_notes() -> None:
+    segs_t = [np.array([0.0, 1.0, 2.0]), np.array([3.0, 4.0])]
+    segs_p = [np.full(3, 2.0), np.full(2, 2.0)]
+    values, notes = compute_metrics(segs_t, segs_p, 2.0)
+    assert math.isnan(values["mape"])
+    assert notes["mape"] == (
+        "MAPE is undefined: 1 target value is within 0.002 of zero "
+        "(smallest |y| = 0.0); report MAE or RMAE instead"
+    )
+    assert math.isnan(values["ppmcc"])
+    assert notes["ppmcc"] == "PPMCC is undefined: prediction constant; no correlation exists"
+    assert values["mae"] == pytest.approx(1.2)
+    assert values["r2"] == pytest.approx(1.0 - 10.0 / 10.0)
+    assert set(notes) == {"mape", "ppmcc"}
+
+    values, notes = compute_metrics([np.full(3, 5.0)], [np.array([4.0, 5.0, 6.0])], 5.0)
+    assert math.isnan(values["r2"]) and notes["r2"].startswith("R^2 is undefined: target constant")
+    assert notes["ppmcc"] == "PPMCC is undefined: target constant; no correlation exists"
+    assert math.isnan(values["rmae_seg_sd"]) and "only 1 test segment" in notes["rmae_seg_sd"]
+    assert values["rmae"] == pytest.approx(2.0 / 3.0 / 5.0 * 100.0)
+
+
+def test_metric_registry_directions() -> None:
+    lower = {k for k, v in METRICS.items() if v.lower_is_better}
+    assert lower == {"mae", "rmse", "mape", "rmae", "rmae_seg_sd", "rmae_seg_median", "rmae_seg_iqr"}
+    assert not METRICS["r2"].lower_is_better and not METRICS["ppmcc"].lower_is_better
+    assert all(v.description for v in METRICS.values())
+
+
+# ---------------------------------------------------------------- properties
+
+_vals = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def _pairs(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = draw(st.integers(min_value=2, max_value=30))
+    t = draw(arrays(float, n, elements=_vals))
+    p = draw(arrays(float, n, elements=_vals))
+    perm = draw(st.permutations(range(n)))
+    return t, p, np.array(perm)
+
+
+@settings(max_examples=40, deadline=None)
+@given(_pairs())
+def test_properties(pair: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, p, perm = pair
+    m, r = mae(t, p), rmse(t, p)
+    assert 0.0 <= m <= r * (1 + 1e-12) + 1e-12
+    assert mae(t[perm], p[perm]) == pytest.approx(m, rel=1e-12, abs=1e-12)
+    assert rmse(t[perm], p[perm]) == pytest.approx(r, rel=1e-12, abs=1e-12)
+    c = ppmcc(t, p)
+    assert math.isnan(c) or -1.0 <= c <= 1.0
+    # one segment: RMAE is pooled MAE over the scale
+    assert rmae([t], [p], 7.0) == pytest.approx(m / 7.0 * 100.0, rel=1e-12, abs=1e-12)
