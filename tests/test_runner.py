@@ -1,0 +1,157 @@
+"""The protocol engine end to end on a small synthetic dataset: plan, run, store, summarise."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from enginebench.experiments.runner import plan, prepare, run_experiment
+from enginebench.experiments.spec import from_dict, load_spec
+from enginebench.results.store import RunStore
+from enginebench.results.tables import SUMMARY_COLUMNS, summarize, to_csv, to_html, to_latex, to_markdown
+
+
+def toy_spec(dataset, **changes):
+    raw = {
+        "name": "toy-exp", "dataset": str(dataset), "targets": ["y"], "repetitions": 3, "seed": 7,
+        "train_size": 150, "selection": {"kind": "bootstrap", "resamples": 2},
+        "methods": {"naive-mean": {}, "krls": {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}},
+    }
+    raw.update(changes)
+    return from_dict(raw, origin="test")
+
+
+def test_plan_covers_every_coordinate_once(toy_parquet):
+    spec = toy_spec(toy_parquet, mode="window", windows=[0, 2])
+    jobs = plan(prepare(spec))
+    assert len(jobs) == 3 * 2 * 2  # repetitions x windows x methods
+    assert len({j.key for j in jobs}) == len(jobs)
+
+
+def test_run_stores_every_job_and_is_deterministic(toy_parquet, tmp_path):
+    spec = toy_spec(toy_parquet)
+    store = RunStore(tmp_path / "runs")
+    a = run_experiment(spec, store, workers=1)
+    b = run_experiment(spec, store, workers=1)
+    assert a.n_failed == 0 and a.n_jobs == 6
+    assert len(list((a.run.path / "jobs").glob("*.parquet"))) == 6
+    assert not list((a.run.path / "jobs").glob(".*"))  # no temporary files left
+    ma, mb = (r.run.metrics().sort_values(["method", "repetition", "metric"]) for r in (a, b))
+    keep = ~ma["metric"].str.startswith("time_")
+    assert np.array_equal(ma.loc[keep, "value"].to_numpy(), mb.loc[keep, "value"].to_numpy(), equal_nan=True)
+    info = a.run.info()
+    assert info["status"] == "finished" and info["finished_jobs"] == 6
+    env = a.run.environment()
+    assert env["seed"] == 7 and env["packages"]["numpy"]
+    meta = a.run.job_meta(f"y__w0__published__krls__r000")
+    assert set(meta["params"]) == {"gamma", "lambda"} and meta["search"]["grid_size"] == 9
+    assert a.run.config()["train_size"] == 150
+
+
+def test_process_pool_gives_the_same_metrics_as_serial(toy_parquet, tmp_path):
+    spec = toy_spec(toy_parquet, repetitions=2)
+    store = RunStore(tmp_path / "runs")
+    serial = run_experiment(spec, store, workers=1).run.metrics()
+    pooled = run_experiment(spec, store, workers=2).run.metrics()
+    key = ["method", "repetition", "split", "metric"]
+    s = serial[~serial["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
+    p = pooled[~pooled["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
+    np.testing.assert_allclose(s, p, rtol=1e-9, atol=1e-12)  # BLAS threads may differ
+
+
+def test_methods_of_a_repetition_share_the_training_rows(toy_parquet, tmp_path):
+    run = run_experiment(toy_spec(toy_parquet, repetitions=2), RunStore(tmp_path), workers=1).run
+    n0 = run.job_meta("y__w0__published__krls__r000")["n_train"]
+    assert n0 == 150 == run.job_meta("y__w0__published__naive-mean__r000")["n_train"]
+
+
+def test_summary_matches_hand_statistics(toy_parquet, tmp_path):
+    run = run_experiment(toy_spec(toy_parquet, repetitions=4), RunStore(tmp_path), workers=1).run
+    metrics = run.metrics()
+    summary = summarize(metrics)
+    assert list(summary.columns) == SUMMARY_COLUMNS
+    row = summary[(summary["method"] == "krls") & (summary["metric"] == "mae")].iloc[0]
+    v = metrics[(metrics["method"] == "krls") & (metrics["metric"] == "mae")]["value"].to_numpy()
+    half = 3.182446305284263 * v.std(ddof=1) / 2  # t_{0.975, 3} * s / sqrt(4)
+    assert row["mean"] == pytest.approx(v.mean())
+    assert row["ci_high"] - row["mean"] == pytest.approx(half)
+    assert row["median"] == pytest.approx(np.median(v)) and row["n_repeats"] == 4
+    skill = summary[(summary["method"] == "krls") & (summary["metric"] == "skill_mae")].iloc[0]
+    base = metrics[(metrics["method"] == "naive-mean") & (metrics["metric"] == "mae")].sort_values("repetition")["value"].to_numpy()
+    mine = metrics[(metrics["method"] == "krls") & (metrics["metric"] == "mae")].sort_values("repetition")["value"].to_numpy()
+    assert skill["mean"] == pytest.approx(np.mean(1 - mine / base))
+    assert skill["mean"] > 0.5  # KRLS beats the constant on this smooth relation
+
+
+def test_table_formats(toy_parquet, tmp_path):
+    run = run_experiment(toy_spec(toy_parquet), RunStore(tmp_path), workers=1).run
+    summary = summarize(run.metrics())
+    md = to_markdown(summary)
+    assert md.splitlines()[0] == "| target | mode | window | split | method | n | mae | mape | ppmcc | rmae |"
+    krls_line = next(line for line in md.splitlines() if "| krls |" in line)
+    assert krls_line.count("**") >= 6  # krls is best on mae, mape, ppmcc, rmae
+    assert r"\toprule" in to_latex(summary) and r"\textbf{" in to_latex(summary)
+    assert "<table" in to_html(summary) and "<b>" in to_html(summary)
+    csv = pd.read_csv(__import__("io").StringIO(to_csv(summary)))
+    for col in ["dataset", "target", "mode", "window", "method", "split", "metric", "mean", "ci_low", "ci_high",
+                "sd", "median", "iqr", "n_repeats"]:
+        assert col in csv.columns
+
+
+class Exploding:
+    pass
+
+
+def test_failed_jobs_are_counted_not_averaged(toy_parquet, tmp_path):
+    from enginebench.methods.base import Method
+    from enginebench.methods.registry import register
+
+    @register
+    class NaNMethod(Method):
+        name = "test-nan"
+        family = "data-driven"
+
+        def fit(self, train, params, rng):
+            return None
+
+        def predict(self, fitted, data):
+            return [np.full((len(s), 1), np.nan) for s in data.segments]
+
+    spec = toy_spec(toy_parquet, methods={"naive-mean": {}, "test-nan": {}})
+    result = run_experiment(spec, RunStore(tmp_path), workers=1)
+    assert result.n_failed == 3
+    meta = result.run.job_meta("y__w0__published__test-nan__r000")
+    assert meta["status"] == "failed"
+    assert meta["reason"] == ("FloatingPointError: test-nan returned non-finite predictions for 1 segment(s) "
+                              "of the test part (first: s3)")
+    summary = summarize(result.run.metrics())
+    assert set(summary["method"]) == {"naive-mean"}
+
+
+def test_builtin_specs_parse():
+    spec = load_spec("gas-turbine-nox")
+    assert spec.methods == ("naive-mean", "krls") and spec.repetitions == 30
+    assert spec.method_options["krls"]["gamma_grid"] == [-4, 4, 41]
+
+
+@pytest.mark.parametrize("raw, message", [
+    ({"dataset": "x", "targets": ["y"]}, "test: missing required key 'methods'"),
+    ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "colour": 1}, "test: unknown key(s) colour;"),
+    ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "mode": "psychic"},
+     "test: mode 'psychic' is not one of static, window, simulation"),
+    ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "windows": [10]},
+     "test: windows > 0 need mode = 'window' (mode is 'static')"),
+    ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "repetitions": 0},
+     "test: 'repetitions' must be an integer >= 1, got 0"),
+    ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "selection": {"kind": "cv"}},
+     "test: selection kind 'cv' is not one of bootstrap, kfold, none"),
+])
+def test_spec_errors(raw, message):
+    from enginebench.errors import SpecError
+
+    with pytest.raises(SpecError) as err:
+        from_dict(raw, origin="test")
+    assert str(err.value).startswith(message)
