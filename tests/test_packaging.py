@@ -1,0 +1,43 @@
+"""Installation puts everything under the enginebench package and registers the built-ins."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import zipfile
+from importlib.metadata import entry_points
+from pathlib import Path, PurePosixPath
+
+import pytest
+
+import enginebench.datasets
+import enginebench.methods
+
+FORBIDDEN_TOP_LEVEL = {"datasets", "methods", "results", "cli", "experiments", "benchmarks", "tests"}
+
+
+def test_the_wheel_puts_everything_under_enginebench(tmp_path):
+    """Build the wheel from this checkout: every module sits below enginebench/."""
+    pytest.importorskip("setuptools")
+    root = Path(__file__).resolve().parents[1]
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(root)],
+                   check=True, capture_output=True)
+    (wheel,) = tmp_path.glob("enginebench-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    tops = {PurePosixPath(n).parts[0] for n in names if not PurePosixPath(n).parts[0].endswith(".dist-info")}
+    assert tops == {"enginebench"}, sorted(tops)
+    assert not tops & FORBIDDEN_TOP_LEVEL
+    assert "enginebench/datasets/samples.py" in names and "enginebench/cli/main.py" in names
+    assert "enginebench/experiments/builtin/gas-turbine-nox.toml" in names
+
+
+def test_subpackages_resolve_inside_enginebench():
+    assert enginebench.datasets.__name__ == "enginebench.datasets"
+    assert enginebench.methods.__name__ == "enginebench.methods"
+
+
+def test_console_script_and_builtin_methods_are_registered():
+    scripts = {ep.name: ep.value for ep in entry_points(group="console_scripts")}
+    assert scripts.get("enginebench") == "enginebench.cli.main:main"
+    methods = {ep.name for ep in entry_points(group="enginebench.methods")}
+    assert {"naive-mean", "naive-last", "krls"} <= methods
