@@ -152,7 +152,9 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     try:
         rows = pq.read_metadata(path).num_rows
     except (pa.ArrowInvalid, OSError) as exc:
-        raise DataError(f"file {path} is corrupted: cannot read its footer ({_one_line(exc)}); restore it from a backup") from exc
+        raise DataError(
+            f"file {path} is corrupted: cannot read its footer ({_one_line(exc)}); restore it from a backup"
+        ) from exc
     return {**doc, "rows": int(rows), "path": str(path)}
 
 
@@ -185,7 +187,8 @@ def read_dataset(path: str | os.PathLike[str], columns: list[str] | None = None)
             f"file {path} is corrupted: cannot decode its data ({_one_line(exc)}); "
             "restore it from a backup or re-create it from its source"
         ) from exc
-    ds = Dataset(name=str(doc["name"]), frame=frame, schema=schema, dt=float(doc["dt"]), meta=dict(doc.get("meta", {})))
+    meta = dict(doc.get("meta", {}))
+    ds = Dataset(name=str(doc["name"]), frame=frame, schema=schema, dt=float(doc["dt"]), meta=meta)
     if full and ds.content_hash() != doc.get("content_hash"):
         raise DataError(
             f"file {path} is corrupted: content hash mismatch (stored {str(doc.get('content_hash'))[:12]}, "

@@ -113,8 +113,10 @@ def _header(cells: pd.DataFrame) -> list[str]:
 def _rows(cells: pd.DataFrame, bold: pd.DataFrame, mark) -> list[list[str]]:
     out = []
     for idx, row in cells.iterrows():
+        idx = idx if isinstance(idx, tuple) else (idx,)
         keys = [f"{k:g}" if isinstance(k, float) else str(k) for k in idx]
-        out.append(keys + [mark(v) if bold.loc[idx, c] else v for c, v in row.items()])
+        flags = bold.loc[idx if len(idx) > 1 else idx[0]]
+        out.append(keys + [mark(v) if flags[c] else v for c, v in row.items()])
     return out
 
 
@@ -166,11 +168,25 @@ def to_csv(summary: pd.DataFrame) -> str:
     return summary.to_csv(index=False)
 
 
+def _drop_constant_levels(cells: pd.DataFrame, bold: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+    """Move index levels with a single value into a caption line (narrow terminals)."""
+    fixed = []
+    for name in list(cells.index.names):
+        values = cells.index.get_level_values(name).unique()
+        if len(values) == 1 and cells.index.nlevels > 1:
+            v = values[0]
+            fixed.append(f"{name} {v:g}" if isinstance(v, float) else f"{name} {v}")
+            cells, bold = cells.droplevel(name), bold.droplevel(name)
+    return cells, bold, ", ".join(fixed)
+
+
 def to_rich(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS, title: str | None = None):
-    """A rich Table for the terminal."""
+    """A rich Table for the terminal; levels that never change go to the title."""
     from rich.table import Table
 
     cells, bold = wide(summary, metrics)
+    cells, bold, fixed = _drop_constant_levels(cells, bold)
+    title = " | ".join(t for t in (title, fixed) if t) or None
     table = Table(title=title, caption=interval_note(summary))
     for i, h in enumerate(_header(cells)):
         table.add_column(h, justify="left" if i < len(cells.index.names) else "right")

@@ -1,0 +1,134 @@
+"""Gaussian kernels and the spectral solver shared by the kernel methods (KRLS, MTL-KRLS).
+
+One eigendecomposition of the training kernel, Q = V diag(s) V^T, turns every
+regularised solve (Q + lambda I)^-1 y into a per-component division in the
+eigenbasis, so a whole vector of regularisation values costs one decomposition.
+``Spectral`` keeps the decomposition and the per-component solve separable: the hybrid
+MTL-KRLS projects its two targets with ``project``, solves its own 3x3 systems per
+component and comes back with ``lift`` or ``predict_coeffs``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+from sklearn.metrics.pairwise import euclidean_distances
+from sklearn.preprocessing import StandardScaler
+
+from enginebench.errors import MethodError
+
+NEGATIVE_EIG_RTOL = 1e-8
+"""Eigenvalues below -NEGATIVE_EIG_RTOL * max|s| mean the matrix is not a kernel matrix."""
+
+
+def make_scaler(X: np.ndarray, standardize: bool = True) -> StandardScaler:
+    """A scaler fitted on training features: zero mean, unit std (std 0 -> 1), or the identity.
+
+    With ``standardize=False`` the returned scaler leaves features unchanged, so fitted
+    models always carry a scaler and the prediction path is the same either way.
+    """
+    return StandardScaler(with_mean=standardize, with_std=standardize).fit(X)
+
+
+def sq_distances(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
+    """Squared Euclidean distances |a_i - b_j|^2, shape (len(A), len(B)), clipped at 0.
+
+    ``B=None`` means ``B = A`` (the diagonal is then exactly zero).
+    """
+    D = euclidean_distances(A, B, squared=True)
+    return np.maximum(D, 0.0, out=D)
+
+
+def gaussian(D: np.ndarray, gamma: float, out: np.ndarray | None = None) -> np.ndarray:
+    """Gaussian kernel exp(-gamma * D) from squared distances D: K(x, x') = exp(-gamma |x - x'|^2)."""
+    out = np.multiply(D, -float(gamma), out=out)
+    return np.exp(out, out=out)
+
+
+def check_positive(values: np.ndarray, name: str) -> np.ndarray:
+    """``values`` as a 1-D float array, or a MethodError if any is not a positive finite number."""
+    try:
+        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise MethodError(f"hyperparameter {name!r} must be a positive number, got {values!r}") from None
+    bad = ~(np.isfinite(arr) & (arr > 0))
+    if bad.any():
+        raise MethodError(
+            f"hyperparameter {name!r} must be a positive finite number, got {float(arr[bad][0])!r}; "
+            f"choose values > 0 (e.g. a log grid 1e-4 ... 1e4)"
+        )
+    return arr
+
+
+@dataclass(frozen=True)
+class Spectral:
+    """Eigendecomposition Q = V diag(s) V^T of a symmetric positive semi-definite kernel matrix.
+
+    ``s`` is ascending and clipped at 0 (rounding makes the smallest eigenvalues of a
+    Gaussian kernel matrix slightly negative); ``V`` has orthonormal columns.
+    """
+
+    V: np.ndarray
+    s: np.ndarray
+
+    @classmethod
+    def from_kernel(cls, Q: np.ndarray, overwrite: bool = False) -> "Spectral":
+        """Decompose ``Q`` (n x n; only its lower triangle is read). ``overwrite`` lets eigh reuse Q's memory."""
+        Q = np.asarray(Q, dtype=np.float64)
+        if Q.ndim != 2 or Q.shape[0] != Q.shape[1]:
+            raise MethodError(f"kernel matrix must be square, got shape {Q.shape}")
+        if Q.shape[0] == 0:
+            raise MethodError("kernel matrix is empty: no training rows; give at least one training sample")
+        s, V = scipy.linalg.eigh(Q, driver="evd", overwrite_a=overwrite, check_finite=False)
+        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(V))):
+            raise MethodError(
+                "kernel matrix has non-finite entries or eigenvalues; check the features for nan/inf"
+            )
+        scale = float(np.max(np.abs(s)))
+        if s[0] < -NEGATIVE_EIG_RTOL * scale:
+            raise MethodError(
+                f"kernel matrix is not positive semi-definite (smallest eigenvalue {s[0]:.3g}, "
+                f"largest magnitude {scale:.3g}); pass a valid kernel matrix"
+            )
+        return cls(V=V, s=np.maximum(s, 0.0))
+
+    def __len__(self) -> int:
+        return self.s.size
+
+    def project(self, y: np.ndarray) -> np.ndarray:
+        """Components in the eigenbasis, V^T y: (n,) or (n, k) -> same shape."""
+        return self.V.T @ y
+
+    def lift(self, coeffs: np.ndarray) -> np.ndarray:
+        """Back from the eigenbasis, V @ coeffs; ``coeffs`` is (n, ...) and keeps its trailing axes."""
+        flat = np.asarray(coeffs).reshape(len(self), -1)
+        return (self.V @ flat).reshape(np.shape(coeffs))
+
+    def ridge_coeffs(self, Vty: np.ndarray, lambdas: np.ndarray) -> np.ndarray:
+        """Eigenbasis coefficients of (Q + lambda I)^-1 y for every lambda: (n, k) -> (n, L, k)."""
+        lambdas = check_positive(lambdas, "lambda")
+        Vty = np.asarray(Vty, dtype=np.float64).reshape(len(self), -1)
+        return Vty[:, None, :] / (self.s[:, None, None] + lambdas[None, :, None])
+
+    def ridge_alpha(self, y: np.ndarray, lambdas: np.ndarray) -> np.ndarray:
+        """Dual coefficients alpha(lambda) = V diag(1/(s + lambda)) V^T y, shape (n, L, k)."""
+        y2 = np.asarray(y, dtype=np.float64).reshape(len(self), -1)
+        return self.lift(self.ridge_coeffs(self.project(y2), lambdas))
+
+    def predict_coeffs(self, K_eval: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+        """Predictions K_eval @ V @ coeffs for eigenbasis ``coeffs`` (n, L, k): shape (L, m, k).
+
+        ``K_eval`` (m x n) is the kernel between evaluation rows and training rows;
+        K_eval @ V is formed once and shared by every lambda.
+        """
+        coeffs = np.asarray(coeffs, dtype=np.float64)
+        n, L, k = coeffs.shape
+        KV = np.asarray(K_eval, dtype=np.float64) @ self.V
+        return np.moveaxis((KV @ coeffs.reshape(n, L * k)).reshape(-1, L, k), 1, 0)
+
+    def ridge_predict(self, K_eval: np.ndarray, y: np.ndarray, lambdas: np.ndarray) -> np.ndarray:
+        """Kernel ridge predictions at ``K_eval`` (m x n) for every lambda: shape (L, m, k)."""
+        y2 = np.asarray(y, dtype=np.float64).reshape(len(self), -1)
+        return self.predict_coeffs(K_eval, self.ridge_coeffs(self.project(y2), lambdas))

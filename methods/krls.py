@@ -1,0 +1,172 @@
+"""Exact kernel regularised least squares with a Gaussian kernel (the seeds' KRLS).
+
+The whole (gamma, lambda) grid costs one eigendecomposition of the training kernel per
+gamma: every lambda is then a per-component division (see ``methods/kernels.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from sklearn.preprocessing import StandardScaler
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
+from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
+
+
+@dataclass(frozen=True)
+class KRLSFitted:
+    """A fitted KRLS model: h(x) = sum_i alpha_i exp(-gamma |s(x) - s(x_i)|^2) + y_mean."""
+
+    scaler: StandardScaler
+    X_train: np.ndarray
+    """Training features after the scaler, (n, d)."""
+    alpha: np.ndarray
+    """Dual coefficients, (n, k)."""
+    gamma: float
+    lam: float
+    y_mean: np.ndarray
+    """Added back to every prediction, (k,); zeros when the target is not centred."""
+
+
+class KRLS(Method):
+    """Gaussian-kernel regularised least squares, solved exactly by eigendecomposition."""
+
+    name = "krls"
+    family = "data-driven"
+    modes = frozenset({"static", "window"})
+    summary = "Gaussian-kernel regularised least squares (exact, one eigendecomposition per gamma)"
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "standardize": True,
+            "center_target": True,
+            "gamma_grid": (-4, 4, 41),
+            "lambda_grid": (-4, 4, 41),
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        for key in ("gamma_grid", "lambda_grid"):
+            spec = self.options[key]
+            try:
+                low, high, num = spec
+                ok = bool(np.isfinite([low, high]).all()) and float(num) == int(num) and int(num) >= 1
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise MethodError(
+                    f"method 'krls': option {key}={spec!r} must be (low exponent, high exponent, count) "
+                    f"with a count >= 1, e.g. (-4, 4, 41) for 10^-4 ... 10^4"
+                )
+
+    def search_space(self, data: Samples) -> SearchSpace:
+        g_lo, g_hi, g_n = self.options["gamma_grid"]
+        l_lo, l_hi, l_n = self.options["lambda_grid"]
+        return {"gamma": log_grid(g_lo, g_hi, int(g_n)), "lambda": log_grid(l_lo, l_hi, int(l_n))}
+
+    # -- shared preparation -------------------------------------------------------------
+    def _train_arrays(self, train: Samples) -> tuple[StandardScaler, np.ndarray, np.ndarray, np.ndarray]:
+        """Scaler, scaled training features, (centred) targets and the target mean."""
+        X, y = train.X, train.y
+        if len(X) == 0:
+            raise MethodError("method 'krls': the training samples are empty; give at least one training row")
+        _check_finite(X, "training features", train.feature_names)
+        _check_finite(y, "training targets", train.target_names)
+        scaler = make_scaler(X, bool(self.options["standardize"]))
+        y_mean = y.mean(axis=0) if self.options["center_target"] else np.zeros(y.shape[1])
+        return scaler, scaler.transform(X), y - y_mean, y_mean
+
+    @staticmethod
+    def _eval_features(scaler: StandardScaler, X_train: np.ndarray, data: Samples) -> np.ndarray:
+        X = data.X
+        if X.shape[1] != X_train.shape[1]:
+            raise MethodError(
+                f"method 'krls': the data have {X.shape[1]} feature columns but the model was trained on "
+                f"{X_train.shape[1]}; predict with samples built for the same inputs, mode and window"
+            )
+        _check_finite(X, "features to predict", data.feature_names)
+        return scaler.transform(X)
+
+    # -- single grid point --------------------------------------------------------------
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> KRLSFitted:
+        gamma, lam = _params(params)
+        scaler, Xs, yc, y_mean = self._train_arrays(train)
+        spectral = Spectral.from_kernel(gaussian(sq_distances(Xs), gamma), overwrite=True)
+        alpha = spectral.ridge_alpha(yc, np.array([lam]))[:, 0, :]
+        return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha, gamma=gamma, lam=lam, y_mean=y_mean)
+
+    def predict(self, fitted: KRLSFitted, data: Samples) -> list[np.ndarray]:
+        Xe = self._eval_features(fitted.scaler, fitted.X_train, data)
+        K = gaussian(sq_distances(Xe, fitted.X_train), fitted.gamma)
+        return split_rows(K @ fitted.alpha + fitted.y_mean, data)
+
+    def describe(self, fitted: KRLSFitted) -> dict[str, Any]:
+        return {"gamma": float(fitted.gamma), "lambda": float(fitted.lam), "n_train": int(fitted.X_train.shape[0])}
+
+    # -- the whole grid at once -----------------------------------------------------------
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Predictions for every grid point, (n_grid, n_rows, n_targets), in the order of ``grid``.
+
+        Squared distances are computed once; per distinct gamma one eigendecomposition
+        serves all of that gamma's lambdas in one vectorised solve.
+        """
+        pairs = [_params(p) for p in grid]
+        scaler, Xs, yc, y_mean = self._train_arrays(train)
+        Xe = self._eval_features(scaler, Xs, data)
+        out = np.empty((len(pairs), len(Xe), yc.shape[1]))
+        if not pairs:
+            return out
+        D_train = sq_distances(Xs)
+        D_eval = sq_distances(Xe, Xs)
+        K_train = np.empty_like(D_train)
+        K_eval = np.empty_like(D_eval)
+        gammas = np.array([g for g, _ in pairs])
+        lambdas = np.array([lam for _, lam in pairs])
+        for gamma in dict.fromkeys(gammas.tolist()):  # distinct gammas, in order of first appearance
+            idx = np.flatnonzero(gammas == gamma)
+            spectral = Spectral.from_kernel(gaussian(D_train, gamma, out=K_train), overwrite=True)
+            coeffs = spectral.ridge_coeffs(spectral.project(yc), lambdas[idx])
+            out[idx] = spectral.predict_coeffs(gaussian(D_eval, gamma, out=K_eval), coeffs)
+        out += y_mean
+        return out
+
+
+def _params(params: Params) -> tuple[float, float]:
+    """(gamma, lambda) from a grid point, checked positive."""
+    missing = [k for k in ("gamma", "lambda") if k not in params]
+    if missing:
+        raise MethodError(
+            f"method 'krls': hyperparameter(s) {', '.join(missing)} missing from {dict(params)!r}; "
+            f"give both 'gamma' and 'lambda'"
+        )
+    unknown = sorted(set(params) - {"gamma", "lambda"})
+    if unknown:
+        raise MethodError(
+            f"method 'krls': unknown hyperparameter(s) {', '.join(unknown)}; it has 'gamma' and 'lambda'"
+        )
+    values = []
+    for key in ("gamma", "lambda"):
+        if np.ndim(params[key]) != 0:
+            raise MethodError(f"method 'krls': hyperparameter {key!r} must be one number, got {params[key]!r}")
+        values.append(float(check_positive(params[key], key)[0]))
+    return values[0], values[1]
+
+
+def _check_finite(values: np.ndarray, what: str, names: Sequence[str]) -> None:
+    """MethodError naming the first column and row with nan/inf."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        name = names[col] if col < len(names) else f"#{col}"
+        raise MethodError(
+            f"method 'krls': {what} contain nan/inf (column {name!r}, stacked row {row}); "
+            f"clean or drop those rows before fitting"
+        )

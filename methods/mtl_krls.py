@@ -1,0 +1,188 @@
+"""``mtl-krls``: the hybrid model of the diesel seed, learning from measurements and the PM at once.
+
+Two tasks share the inputs: the measured target y and the physical model's prediction p.
+With a shared model w and task models w_y, w_p (seed 000, eq. 20)::
+
+    min |Phi w - y|^2 + |Phi w - p|^2 + |Phi w_y - y|^2 + |Phi w_p - p|^2
+        + lambda |w|^2 + theta (|w - w_y|^2 + |w - w_p|^2)
+
+By the representer theorem w = Phi^T a, w_y = Phi^T b, w_p = Phi^T c. In the eigenbasis
+of Q = Phi Phi^T = V diag(s) V^T the stationarity conditions decouple into one 3x3
+system per component (DESIGN section 5)::
+
+    [[2s + lambda + 2 theta, -theta, -theta],   [a~]   [y~ + p~]
+     [-theta,       s + theta,       0     ], . [b~] = [y~     ]
+     [-theta,       0,       s + theta     ]]   [c~]   [p~     ]
+
+whose closed form is a~ = (y~ + p~)(s + 2 theta) / (s (2 s + 4 theta + lambda) + lambda theta),
+b~ = (y~ + theta a~) / (s + theta), c~ = (p~ + theta a~) / (s + theta). So the whole
+(gamma, lambda, theta) grid costs one eigendecomposition per gamma, like KRLS.
+
+The shared model h(x) = sum_i a_i K(x_i, x) is the prediction, as in the seed. Note what
+the closed form says: a~ depends on y and p only through y + p, so the shared model is a
+spectral smoother of the average (y + p) / 2. The y-task model (``predict_with = "task"``)
+is offered for comparison. The PM's prediction is also an input feature
+(``pm_feature``); ``pm_task = false`` replaces p by y in the objective (no PM task).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from sklearn.preprocessing import StandardScaler
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
+from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
+from enginebench.methods.krls import KRLS, _check_finite
+from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
+
+HYPERPARAMETERS = ("gamma", "lambda", "theta")
+
+
+def mtl_coefficients(
+    s: np.ndarray, y_t: np.ndarray, p_t: np.ndarray, lambdas: np.ndarray, thetas: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eigenbasis coefficients (a~, b~, c~) for every (lambda, theta): each (n, L, T, k).
+
+    ``s`` (n,) are the kernel eigenvalues, ``y_t``/``p_t`` (n, k) the projected targets.
+    """
+    s = s[:, None, None, None]
+    lam = np.asarray(lambdas, dtype=float)[None, :, None, None]
+    th = np.asarray(thetas, dtype=float)[None, None, :, None]
+    y_t, p_t = y_t[:, None, None, :], p_t[:, None, None, :]
+    a = (y_t + p_t) * (s + 2 * th) / (s * (2 * s + 4 * th + lam) + lam * th)
+    b = (y_t + th * a) / (s + th)
+    c = (p_t + th * a) / (s + th)
+    return a, b, c
+
+
+@dataclass(frozen=True)
+class MTLFitted:
+    scaler: StandardScaler
+    X_train: np.ndarray
+    alpha: np.ndarray
+    gamma: float
+    lam: float
+    theta: float
+    offset: np.ndarray
+    pm_params: dict[str, Any]
+    distance_to_pm: float
+    """RMS gap between the fitted hybrid and the PM on the training rows (target units)."""
+
+
+class MTLKRLS(KRLS):
+    """Multi-task KRLS: a shared model fitted to the measurements and the physical model together."""
+
+    name = "mtl-krls"
+    family = "hybrid"
+    modes = frozenset({"static", "window"})
+    summary = "hybrid multi-task KRLS: measurements and the physical model as two tasks"
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {**super().default_options(), "theta_grid": (-4, 4, 41), "pm_feature": True, "pm_task": True,
+                "predict_with": "shared"}
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        if self.options["predict_with"] not in ("shared", "task"):
+            raise MethodError(f"method 'mtl-krls': predict_with must be 'shared' or 'task', got {self.options['predict_with']!r}")
+        low_high_num = self.options["theta_grid"]
+        try:
+            ok = len(low_high_num) == 3 and int(low_high_num[2]) >= 1
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise MethodError(f"method 'mtl-krls': option theta_grid={low_high_num!r} must be (low exponent, high exponent, count)")
+
+    def search_space(self, data: Samples) -> SearchSpace:
+        t_lo, t_hi, t_n = self.options["theta_grid"]
+        return {**super().search_space(data), "theta": log_grid(t_lo, t_hi, int(t_n))}
+
+    # -- data ---------------------------------------------------------------------------
+    def _features(self, data: Samples, p: np.ndarray) -> np.ndarray:
+        X = data.X
+        return np.hstack([X, p]) if self.options["pm_feature"] else X
+
+    def _prepare(self, train: Samples) -> tuple[dict[str, Any], StandardScaler, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        pm = physical_model(train)
+        pm_params = pm.calibrate(calibration_signals(train))
+        p = np.concatenate(simulate_rows(pm, pm_params, train))
+        y = train.y
+        X = self._features(train, p)
+        if len(X) == 0:
+            raise MethodError("method 'mtl-krls': the training samples are empty")
+        _check_finite(X, "training features (with the PM prediction)", (*train.feature_names, "pm"))
+        _check_finite(y, "training targets", train.target_names)
+        scaler = make_scaler(X, bool(self.options["standardize"]))
+        offset = y.mean(axis=0) if self.options["center_target"] else np.zeros(y.shape[1])
+        p_task = p if self.options["pm_task"] else y
+        return pm_params, scaler, scaler.transform(X), y - offset, p_task - offset, offset
+
+    def _eval(self, data: Samples, pm_params: dict[str, Any], scaler: StandardScaler) -> np.ndarray:
+        pm = physical_model(data)
+        p = np.concatenate(simulate_rows(pm, pm_params, data))
+        X = self._features(data, p)
+        _check_finite(X, "features to predict (with the PM prediction)", (*data.feature_names, "pm"))
+        return scaler.transform(X)
+
+    def _pick(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return a if self.options["predict_with"] == "shared" else b
+
+    # -- one grid point -------------------------------------------------------------------
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MTLFitted:
+        gamma, lam, theta = _params(params)
+        pm_params, scaler, Xs, yc, pc, offset = self._prepare(train)
+        spectral = Spectral.from_kernel(gaussian(sq_distances(Xs), gamma))
+        a, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), np.array([lam]), np.array([theta]))
+        coeffs = self._pick(a, b)[:, 0, 0, :]
+        alpha = spectral.lift(coeffs)
+        fitted_train = spectral.lift(spectral.s[:, None] * coeffs)  # Q alpha = V diag(s) coeffs
+        gap = float(np.sqrt(np.mean((fitted_train - pc) ** 2))) if self.options["pm_task"] else float("nan")
+        return MTLFitted(scaler, Xs, alpha, gamma, lam, theta, offset, pm_params, gap)
+
+    def predict(self, fitted: MTLFitted, data: Samples) -> list[np.ndarray]:
+        Xe = self._eval(data, fitted.pm_params, fitted.scaler)
+        K = gaussian(sq_distances(Xe, fitted.X_train), fitted.gamma)
+        return split_rows(K @ fitted.alpha + fitted.offset, data)
+
+    def describe(self, fitted: MTLFitted) -> dict[str, Any]:
+        return {"gamma": fitted.gamma, "lambda": fitted.lam, "theta": fitted.theta, "n_train": int(fitted.X_train.shape[0]),
+                "rms_distance_to_pm_on_training_rows": fitted.distance_to_pm, "pm_params": fitted.pm_params,
+                "pm_feature": self.options["pm_feature"], "pm_task": self.options["pm_task"],
+                "predict_with": self.options["predict_with"]}
+
+    # -- the whole grid -------------------------------------------------------------------
+    def predict_grid(self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator) -> np.ndarray:
+        """(n_grid, n_rows, k): one eigendecomposition per distinct gamma serves its whole (lambda, theta) block."""
+        triples = np.array([_params(p) for p in grid]).reshape(-1, 3)
+        pm_params, scaler, Xs, yc, pc, offset = self._prepare(train)
+        Xe = self._eval(data, pm_params, scaler)
+        out = np.empty((len(triples), len(Xe), yc.shape[1]))
+        if not len(triples):
+            return out
+        D_train, D_eval = sq_distances(Xs), sq_distances(Xe, Xs)
+        K_train, K_eval = np.empty_like(D_train), np.empty_like(D_eval)
+        for gamma in dict.fromkeys(triples[:, 0].tolist()):
+            idx = np.flatnonzero(triples[:, 0] == gamma)
+            lams, li = np.unique(triples[idx, 1], return_inverse=True)
+            ths, ti = np.unique(triples[idx, 2], return_inverse=True)
+            spectral = Spectral.from_kernel(gaussian(D_train, gamma, out=K_train), overwrite=True)
+            a, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), lams, ths)
+            coeffs = self._pick(a, b)[:, li, ti, :]  # (n, G_gamma, k)
+            out[idx] = spectral.predict_coeffs(gaussian(D_eval, gamma, out=K_eval), coeffs)
+        return out + offset
+
+
+def _params(params: Params) -> tuple[float, float, float]:
+    missing = [k for k in HYPERPARAMETERS if k not in params]
+    if missing:
+        raise MethodError(f"method 'mtl-krls': hyperparameter(s) {', '.join(missing)} missing from {dict(params)!r}")
+    unknown = sorted(set(params) - set(HYPERPARAMETERS))
+    if unknown:
+        raise MethodError(f"method 'mtl-krls': unknown hyperparameter(s) {', '.join(unknown)}; it has gamma, lambda, theta")
+    return tuple(float(check_positive(params[k], k)[0]) for k in HYPERPARAMETERS)  # type: ignore[return-value]

@@ -1,0 +1,260 @@
+"""Exact KRLS: agreement with scikit-learn's KernelRidge, the whole grid from one
+eigendecomposition per gamma, and numerical robustness."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+from sklearn.kernel_ridge import KernelRidge
+from sklearn.preprocessing import StandardScaler
+
+from enginebench.datasets.dataset import Dataset
+from enginebench.datasets.samples import make_samples
+from enginebench.datasets.schema import Schema
+from enginebench.errors import MethodError
+from enginebench.methods.base import grid_points
+from enginebench.methods.kernels import Spectral, gaussian, sq_distances
+from enginebench.methods.krls import KRLS
+
+RNG = np.random.default_rng(0)
+
+
+def _dataset(seed: int, sizes: tuple[int, ...] = (70, 50), offset: float = 0.0) -> Dataset:
+    """Two segments of a smooth 3-input, 2-output engine-like map, on purposely unequal scales."""
+    rng = np.random.default_rng(seed)
+    n = sum(sizes)
+    x1 = rng.uniform(400, 1000, n) + offset  # speed-like, large scale
+    x2 = rng.uniform(0, 1, n)  # load-like
+    x3 = rng.normal(15, 3, n)  # temperature-like
+    y1 = 300 + 0.2 * x1 + 150 * x2**2 + 2 * np.sin(x3) + rng.normal(0, 0.5, n)
+    y2 = 50 * np.tanh(x2 - 0.5) + 0.01 * x1 * x2
+    frame = pd.DataFrame({
+        "segment": np.repeat([f"s{i}" for i in range(len(sizes))], sizes),
+        "time": np.concatenate([np.arange(k, dtype=float) for k in sizes]),
+        "x1": x1, "x2": x2, "x3": x3, "y1": y1, "y2": y2,
+    })
+    schema = Schema.from_roles({"x1": "input", "x2": "input", "x3": "input", "y1": "output", "y2": "output"})
+    return Dataset(name="synthetic", frame=frame, schema=schema, dt=1.0)
+
+
+TRAIN = make_samples(_dataset(1), ["y1", "y2"])
+TEST = make_samples(_dataset(2, sizes=(30, 25)), ["y1", "y2"]).without_targets()
+TRAIN_1 = make_samples(_dataset(1), ["y1"])
+
+
+def _kr(X: np.ndarray, y: np.ndarray, Xe: np.ndarray, gamma: float, lam: float) -> np.ndarray:
+    return KernelRidge(kernel="rbf", gamma=gamma, alpha=lam).fit(X, y).predict(Xe)
+
+
+def _fit_predict(method: KRLS, train, test, gamma: float, lam: float) -> np.ndarray:
+    fitted = method.fit(train, {"gamma": gamma, "lambda": lam}, RNG)
+    parts = method.predict(fitted, test)
+    assert [p.shape for p in parts] == [(len(s), len(train.target_names)) for s in test.segments]
+    return np.concatenate(parts)
+
+
+# Standardised features: gamma acts on unit-variance inputs.
+PAIRS = [(0.1, 1.0), (1.0, 0.1), (0.5, 1e-2), (3.0, 10.0), (0.05, 1e-4), (1.0, 1e-4)]
+
+
+@pytest.mark.parametrize("gamma,lam", PAIRS)
+def test_matches_kernel_ridge_raw(gamma: float, lam: float) -> None:
+    """No standardising, no centring: exactly sklearn's KernelRidge on the raw arrays."""
+    train = make_samples(_dataset(1), ["y1", "y2"])
+    # raw features must be on a kernel-friendly scale for this comparison
+    scaler = StandardScaler().fit(train.X)
+    X, Xe = scaler.transform(train.X), scaler.transform(TEST.X)
+    tr = replace(train, segments=tuple(replace(s, X=scaler.transform(s.X)) for s in train.segments))
+    te = replace(TEST, segments=tuple(replace(s, X=scaler.transform(s.X)) for s in TEST.segments))
+    ours = _fit_predict(KRLS(standardize=False, center_target=False), tr, te, gamma, lam)
+    ref = _kr(X, train.y, Xe, gamma, lam)
+    _assert_close(ours, ref, train.y, lam)
+
+
+@pytest.mark.parametrize("gamma,lam", PAIRS)
+def test_matches_kernel_ridge_standardised_centred(gamma: float, lam: float) -> None:
+    """Defaults: sklearn StandardScaler + KernelRidge on y - mean(y), plus mean(y)."""
+    scaler = StandardScaler().fit(TRAIN.X)
+    y = TRAIN.y
+    ref = _kr(scaler.transform(TRAIN.X), y - y.mean(0), scaler.transform(TEST.X), gamma, lam) + y.mean(0)
+    ours = _fit_predict(KRLS(), TRAIN, TEST, gamma, lam)
+    _assert_close(ours, ref, y, lam)
+
+
+def _assert_close(ours: np.ndarray, ref: np.ndarray, y: np.ndarray, lam: float) -> None:
+    assert ours.shape == ref.shape
+    if lam >= 1e-2:  # well conditioned: agreement to rounding
+        np.testing.assert_allclose(ours, ref, rtol=1e-8, atol=1e-9 * np.abs(y).max())
+    else:  # cond(K + lam I) up to ~1e6: agree relative to the target scale
+        np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-9 * np.abs(y).max())
+
+
+def test_single_target_and_describe() -> None:
+    m = KRLS()
+    fitted = m.fit(TRAIN_1, {"gamma": 0.3, "lambda": 0.1}, RNG)
+    assert m.describe(fitted) == {"gamma": 0.3, "lambda": 0.1, "n_train": len(TRAIN_1)}
+    pred = np.concatenate(m.predict(fitted, TEST))
+    assert pred.shape == (len(TEST), 1)
+    # the first column of a two-target fit is the same model
+    both = _fit_predict(m, TRAIN, TEST, 0.3, 0.1)
+    np.testing.assert_allclose(pred[:, 0], both[:, 0], rtol=1e-10)
+
+
+def test_centring_reverts_to_training_mean_far_from_data() -> None:
+    """Far from every training point K = 0: the centred model predicts mean(y), the raw one 0."""
+    far = make_samples(_dataset(3, offset=1e5), ["y1", "y2"]).without_targets()
+    centred = _fit_predict(KRLS(), TRAIN, far, 1.0, 0.1)
+    raw = _fit_predict(KRLS(center_target=False), TRAIN, far, 1.0, 0.1)
+    np.testing.assert_allclose(centred, np.broadcast_to(TRAIN.y.mean(0), centred.shape), rtol=1e-12)
+    np.testing.assert_allclose(raw, 0.0, atol=1e-12)
+
+
+def test_interpolates_training_data_at_tiny_lambda() -> None:
+    """At lambda -> 0 the exact solution reproduces training targets (distinct points, moderate gamma)."""
+    m = KRLS()
+    fitted = m.fit(TRAIN, {"gamma": 2.0, "lambda": 1e-4}, RNG)
+    pred = np.concatenate(m.predict(fitted, TRAIN.without_targets()))
+    resid = np.abs(pred - TRAIN.y).max(axis=0) / np.abs(TRAIN.y - TRAIN.y.mean(0)).max(axis=0)
+    assert (resid < 1e-2).all()
+
+
+def test_predict_grid_equals_pointwise_fits_in_grid_order() -> None:
+    m = KRLS()
+    space = {"gamma": np.array([0.05, 0.5, 5.0]), "lambda": np.array([1e-4, 1e-2, 1.0, 100.0])}
+    grid = grid_points(space)
+    grid = [grid[i] for i in np.random.default_rng(5).permutation(len(grid))]  # order must be kept
+    out = m.predict_grid(TRAIN, TEST, grid, RNG)
+    assert out.shape == (12, len(TEST), 2)
+    y_scale = np.abs(TRAIN.y).max()
+    for k, p in enumerate(grid):
+        single = _fit_predict(m, TRAIN, TEST, p["gamma"], p["lambda"])
+        np.testing.assert_allclose(out[k], single, rtol=1e-9, atol=1e-9 * y_scale, err_msg=str(p))
+
+
+def test_predict_grid_without_standardising_or_centring_and_empty_grid() -> None:
+    m = KRLS(standardize=False, center_target=False)
+    grid = [{"gamma": 1e-5, "lambda": 0.3}, {"gamma": 1e-4, "lambda": 3.0}, {"gamma": 1e-5, "lambda": 3.0}]
+    out = m.predict_grid(TRAIN_1, TEST, grid, RNG)
+    for k, p in enumerate(grid):
+        ref = _kr(TRAIN_1.X, TRAIN_1.y, TEST.X, p["gamma"], p["lambda"])
+        np.testing.assert_allclose(out[k], ref, rtol=1e-7, atol=1e-7 * np.abs(TRAIN_1.y).max())
+    assert m.predict_grid(TRAIN_1, TEST, [], RNG).shape == (0, len(TEST), 1)
+
+
+def test_duplicate_rows_and_tiny_lambda_stay_finite() -> None:
+    """Repeated rows make the kernel matrix exactly singular; lambda = 1e-4 must still solve."""
+    idx = np.r_[np.arange(len(TRAIN)), np.arange(len(TRAIN)), np.zeros(10, dtype=int)]
+    dup = TRAIN.take(idx)
+    m = KRLS()
+    grid = [{"gamma": g, "lambda": 1e-4} for g in (1e-4, 1e-2, 1.0, 1e2, 1e4)]
+    out = m.predict_grid(dup, TEST, grid, RNG)
+    assert np.isfinite(out).all()
+    fitted = m.fit(dup, grid[2], RNG)
+    assert np.isfinite(fitted.alpha).all()
+    scaler = StandardScaler().fit(dup.X)
+    y = dup.y
+    ref = _kr(scaler.transform(dup.X), y - y.mean(0), scaler.transform(TEST.X), 1.0, 1e-4) + y.mean(0)
+    np.testing.assert_allclose(out[2], ref, rtol=0, atol=1e-9 * np.abs(y).max())
+
+
+def test_search_space_is_the_design_grid() -> None:
+    space = KRLS().search_space(TRAIN)
+    assert list(space) == ["gamma", "lambda"]
+    for values in space.values():
+        assert values.size == 41
+        np.testing.assert_allclose(np.log10(values), np.linspace(-4, 4, 41), atol=1e-12)
+    small = KRLS(gamma_grid=(-1, 1, 3), lambda_grid=[0, 2, 2]).search_space(TRAIN)
+    np.testing.assert_allclose(small["gamma"], [0.1, 1.0, 10.0])
+    np.testing.assert_allclose(small["lambda"], [1.0, 100.0])
+
+
+def test_spectral_solves_every_lambda_at_once() -> None:
+    X = np.random.default_rng(7).normal(size=(40, 3))
+    y = np.random.default_rng(8).normal(size=(40, 2))
+    Q = gaussian(sq_distances(X), 0.7)
+    sp = Spectral.from_kernel(Q)
+    np.testing.assert_allclose(sp.V @ np.diag(sp.s) @ sp.V.T, Q, atol=1e-12)
+    np.testing.assert_allclose(sp.lift(sp.project(y)), y, atol=1e-12)
+    lambdas = np.array([1e-3, 0.1, 10.0])
+    alpha = sp.ridge_alpha(y, lambdas)
+    assert alpha.shape == (40, 3, 2)
+    for j, lam in enumerate(lambdas):
+        np.testing.assert_allclose(alpha[:, j], np.linalg.solve(Q + lam * np.eye(40), y), rtol=1e-8, atol=1e-10)
+    Ke = gaussian(sq_distances(X[:5] + 0.1, X), 0.7)
+    pred = sp.ridge_predict(Ke, y, lambdas)
+    assert pred.shape == (3, 5, 2)
+    np.testing.assert_allclose(pred, np.einsum("mn,nlk->lmk", Ke, alpha), rtol=1e-9, atol=1e-12)
+
+
+def test_sq_distances_and_gaussian_kernel() -> None:
+    A = np.array([[0.0, 0.0], [1.0, 2.0]])
+    B = np.array([[1.0, 0.0], [1.0, 2.0], [3.0, 4.0]])
+    D = sq_distances(A, B)
+    np.testing.assert_allclose(D, [[1, 5, 25], [4, 0, 8]], atol=1e-12)
+    np.testing.assert_allclose(gaussian(D, 0.5), np.exp(-0.5 * np.array([[1, 5, 25], [4, 0, 8]])), atol=1e-15)
+    assert (np.diag(sq_distances(B)) == 0).all()
+
+
+def test_spectral_rejects_non_psd_matrix() -> None:
+    with pytest.raises(MethodError, match="not positive semi-definite"):
+        Spectral.from_kernel(np.array([[1.0, 2.0], [2.0, 1.0]]))
+
+
+@pytest.mark.parametrize(
+    "params,message",
+    [
+        ({"gamma": 1.0}, "hyperparameter\\(s\\) lambda missing"),
+        ({"gamma": 0.0, "lambda": 1.0}, "'gamma' must be a positive finite number, got 0.0"),
+        ({"gamma": 1.0, "lambda": -1.0}, "'lambda' must be a positive finite number, got -1.0"),
+        ({"gamma": 1.0, "lambda": float("nan")}, "'lambda' must be a positive finite number"),
+        ({"gamma": 1.0, "lambda": 1.0, "theta": 2}, "unknown hyperparameter\\(s\\) theta"),
+    ],
+)
+def test_bad_hyperparameters(params: dict, message: str) -> None:
+    with pytest.raises(MethodError, match=message):
+        KRLS().fit(TRAIN, params, RNG)
+    with pytest.raises(MethodError, match=message):
+        KRLS().predict_grid(TRAIN, TEST, [{"gamma": 1.0, "lambda": 1.0}, params], RNG)
+
+
+def test_bad_options_and_inputs() -> None:
+    with pytest.raises(MethodError, match="unknown option\\(s\\) bandwidth"):
+        KRLS(bandwidth=2)
+    with pytest.raises(MethodError, match="option gamma_grid=\\(-4, 4\\) must be"):
+        KRLS(gamma_grid=(-4, 4))
+    fitted = KRLS().fit(TRAIN, {"gamma": 1.0, "lambda": 1.0}, RNG)
+    window = make_samples(_dataset(2), ["y1"], mode="window", window=2.0).without_targets()
+    with pytest.raises(MethodError, match="data have 11 feature columns but the model was trained on 3"):
+        KRLS().predict(fitted, window)
+    ds = _dataset(1)
+    frame = ds.frame.copy()
+    frame.loc[5, "x2"] = np.nan
+    bad = make_samples(ds.with_frame(frame), ["y1"])
+    with pytest.raises(MethodError, match="column 'x2', stacked row 5"):
+        KRLS().fit(bad, {"gamma": 1.0, "lambda": 1.0}, RNG)
+
+
+def test_window_mode_fits_and_is_deterministic() -> None:
+    train = make_samples(_dataset(1), ["y1"], mode="window", window=2.0)
+    test = make_samples(_dataset(2), ["y1"], mode="window", window=2.0).without_targets()
+    m = KRLS()
+    a = np.concatenate(m.predict(m.fit(train, {"gamma": 0.1, "lambda": 0.1}, np.random.default_rng(1)), test))
+    b = np.concatenate(m.predict(m.fit(train, {"gamma": 0.1, "lambda": 0.1}, np.random.default_rng(2)), test))
+    assert a.shape == (len(test), 1) and np.isfinite(a).all()
+    np.testing.assert_array_equal(a, b)
+
+
+def test_constant_feature_is_harmless() -> None:
+    """A constant input (std 0 -> scale 1) adds nothing to any distance: same predictions, no nan."""
+    def with_constant(samples):
+        segs = tuple(replace(s, X=np.hstack([s.X, np.full((len(s), 1), 7.0)])) for s in samples.segments)
+        return replace(samples, segments=segs, feature_names=samples.feature_names + ("const",))
+
+    m = KRLS()
+    base = _fit_predict(m, TRAIN, TEST, 0.5, 1e-2)
+    const = _fit_predict(m, with_constant(TRAIN), with_constant(TEST), 0.5, 1e-2)
+    assert np.isfinite(const).all()
+    np.testing.assert_allclose(const, base, rtol=1e-12, atol=1e-12 * np.abs(TRAIN.y).max())
