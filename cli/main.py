@@ -36,13 +36,14 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from enginebench.cli import datasets, methods, run, table
+    from enginebench.cli import datasets, methods, rank, run, table
 
     cli.add_command(run.run)
     cli.add_command(datasets.datasets)
     cli.add_command(methods.methods)
     cli.add_command(table.table)
     cli.add_command(table.runs)
+    cli.add_command(rank.rank)
 
 
 _register()

@@ -106,6 +106,22 @@ class Samples:
             out.append(replace(s, X=s.X[local], rows=s.rows[local], y=None if s.y is None else s.y[local]))
         return replace(self, segments=tuple(out))
 
+    def variables(self) -> dict[str, list[int]]:
+        """Feature columns grouped by signal: a lagged series ``x[t]``, ``x[t-1]``... is one variable."""
+        groups: dict[str, list[int]] = {}
+        for j, name in enumerate(self.feature_names):
+            groups.setdefault(name.split("[", 1)[0], []).append(j)
+        return groups
+
+    def select_features(self, columns: Sequence[int]) -> "Samples":
+        """The same rows with only the given feature columns (raw inputs ``U`` are kept)."""
+        cols = list(columns)
+        return replace(
+            self,
+            segments=tuple(replace(s, X=np.ascontiguousarray(s.X[:, cols])) for s in self.segments),
+            feature_names=tuple(self.feature_names[j] for j in cols),
+        )
+
     def segment_ids(self) -> list[str]:
         return [s.id for s in self.segments]
 

@@ -112,6 +112,15 @@ class Run:
         _atomic_write_table(path, table)
         return path
 
+    def write_table(self, relative: str, frame: pd.DataFrame) -> Path:
+        """Store an extra artefact table (rankings, predictions) inside the run, atomically."""
+        path = self.path / relative
+        _atomic_write_table(path, pa.Table.from_pandas(frame, preserve_index=False))
+        return path
+
+    def read_table(self, relative: str) -> pd.DataFrame:
+        return pq.read_table(self.path / relative).to_pandas()
+
     def job_meta(self, key: str) -> dict[str, Any]:
         path = self.jobs_dir / f"{key}.parquet"
         try:

@@ -1,0 +1,694 @@
+"""``moe``: seed 003's physics-structured mixture of experts, trained on derivatives, simulated open loop.
+
+The state z is the target(s), the regressors are ``[z; u; 1]`` with u the run-time
+inputs, and the schedulers v are a subset of the inputs (optionally plus the state:
+quasi-LPV). Each expert is an LPV model dz/dt = G_i(v) [z; u; 1]; a softmax gate
+alpha(v) mixes them (``moe_model.py``). Training minimises seed 003's collaborative +
+competitive loss on dz/dt estimated by total-variation regularised differentiation
+(``derivatives.py``), with Adam, on signals standardised with training statistics.
+Prediction integrates all segments at once (padded, fixed step, RK4 or Euler at the
+data's sample times) from the measured y0, and never reads a measured output after t0.
+A trajectory that goes non-finite or leaves ``envelope`` times the training range of y
+is stopped, held and flagged in ``SegmentPredictions.diverged``.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import DataError, MethodError
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.derivatives import tv_derivative
+from enginebench.methods.moe_model import MixtureOfExperts, moe_loss
+
+HYPERPARAMETERS: dict[str, Any] = {
+    "n_experts": 3,
+    "beta1": 1.0,
+    "beta2": 1.0,
+    "k": 1.0,
+    "gate_hidden": 16,
+    "lr": 1e-2,
+    "epochs": 100,
+}
+"""Defaults of the searched hyperparameters (small, so that a fit takes seconds)."""
+
+_SIGN_WORDS = {"+": 1, "positive": 1, "-": -1, "negative": -1, "free": 0}
+
+
+@dataclass
+class MoEFitted:
+    """A trained mixture: weights as numpy arrays plus everything needed to rebuild and simulate it."""
+
+    params: dict[str, Any]
+    options: dict[str, Any]
+    input_names: tuple[str, ...]
+    target_names: tuple[str, ...]
+    scheduler_inputs: tuple[str, ...]
+    expert_inputs: tuple[str, ...]
+    sign: np.ndarray
+    """(k, q) constrained sign of each coefficient of [z; u; 1]: -1, 0 (free) or +1."""
+    u_mean: np.ndarray
+    u_scale: np.ndarray
+    y_mean: np.ndarray
+    y_scale: np.ndarray
+    d_scale: np.ndarray
+    """Scale of the standardised state's derivative (1/s): the network predicts dz/dt / d_scale."""
+    y_min: np.ndarray
+    y_max: np.ndarray
+    weights: dict[str, np.ndarray]
+    probe: np.ndarray
+    """Standardised training scheduler points used for the frozen-stability verdict."""
+    loss_history: list[float] = field(default_factory=list)
+
+    @property
+    def scheduler_names(self) -> tuple[str, ...]:
+        return self.scheduler_inputs + (self.target_names if self.options["scheduler_state"] else ())
+
+    @property
+    def regressor_names(self) -> tuple[str, ...]:
+        return self.target_names + self.expert_inputs + (("1",) if self.options["bias"] else ())
+
+
+class MoE(Method):
+    """Mixture of LPV experts with frozen-stability sign constraints (seed 003)."""
+
+    name = "moe"
+    family = "hybrid"
+    modes = frozenset({"simulation"})
+    summary = "mixture of LPV experts with frozen stability, trained on TV derivatives (seed 003)"
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "scheduler": None,  # input names that schedule gate and experts; None = all inputs
+            "scheduler_state": False,  # also schedule on the state (quasi-LPV)
+            "expert_inputs": None,  # input names in the regressors [z; u; 1]; None = all inputs
+            "bias": True,
+            "signs": "stable",  # "stable" (own-state coefficients < 0), "none", or {column: "+"/"-"}
+            "competitive": "alpha2",  # competitive-term weights: seed eq. 4c alpha^2, or "alpha"
+            "expert_hidden": 16,
+            "batch_size": 512,
+            "tv_alpha": 0.05,  # TV regularisation in standardised-output units, time in samples
+            "tv_order": 0,
+            "integrator": "rk4",  # or "euler"
+            "input_interp": "linear",  # inputs between samples: "linear" or "hold"
+            "envelope": 10.0,  # divergence when y leaves [min - e*range, max + e*range] of training
+            "probe_points": 512,
+            "device": "auto",  # "auto" | "cpu" | "cuda"
+            "dtype": "float32",  # or "float64"
+            "cpu_threads": 1,  # torch intra-op threads on CPU while fitting/simulating; None = leave as is
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        o = self.options
+        choices = {
+            "competitive": ("alpha2", "alpha"),
+            "integrator": ("rk4", "euler"),
+            "input_interp": ("linear", "hold"),
+            "device": ("auto", "cpu", "cuda"),
+            "dtype": ("float32", "float64"),
+            "tv_order": (0, 1),
+        }
+        for key, allowed in choices.items():
+            if o[key] not in allowed:
+                raise MethodError(f"method 'moe': option {key}={o[key]!r}; use one of {', '.join(map(repr, allowed))}")
+        for key in ("expert_hidden", "batch_size", "probe_points"):
+            if not (isinstance(o[key], (int, np.integer)) and o[key] >= 1):
+                raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a positive integer")
+        if o["cpu_threads"] is not None and not (isinstance(o["cpu_threads"], (int, np.integer)) and o["cpu_threads"] >= 1):
+            raise MethodError(f"method 'moe': option cpu_threads={o['cpu_threads']!r} must be a positive integer or None")
+        for key in ("tv_alpha", "envelope"):
+            if not (isinstance(o[key], (int, float)) and np.isfinite(o[key]) and o[key] > 0):
+                raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a positive number")
+        if not (o["signs"] in ("stable", "none") or isinstance(o["signs"], Mapping)):
+            raise MethodError(
+                f"method 'moe': option signs={o['signs']!r}; use 'stable', 'none' or a mapping "
+                "{column: '+' or '-'} such as {'TRQ': '-', 'WF': '+'}"
+            )
+        if isinstance(o["signs"], Mapping):
+            for col, word in o["signs"].items():
+                if word not in _SIGN_WORDS:
+                    raise MethodError(f"method 'moe': option signs[{col!r}]={word!r}; use '+', '-' or 'free'")
+        for key in ("scheduler", "expert_inputs"):
+            if o[key] is not None and (isinstance(o[key], str) or not all(isinstance(c, str) for c in o[key])):
+                raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a list of input column names or None")
+        if o["device"] == "cuda" and not torch.cuda.is_available():
+            raise MethodError("method 'moe': option device='cuda' but torch sees no CUDA device; use device='auto' or 'cpu'")
+
+    def search_space(self, data: Samples) -> SearchSpace:
+        return {
+            "n_experts": np.array([2, 3, 4]),
+            "beta1": np.array([1.0]),
+            "beta2": np.array([0.1, 1.0]),
+            "k": np.array([1.0, 10.0]),
+            "gate_hidden": np.array([16]),
+            "lr": np.array([1e-2]),
+            "epochs": np.array([HYPERPARAMETERS["epochs"]]),
+        }
+
+    # -- training -------------------------------------------------------------------------
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MoEFitted:
+        self.check_mode(train.mode)
+        hp = resolve_params(params)
+        o = self.options
+        sched_in = _names(o["scheduler"], train.input_names, "scheduler")
+        expert_in = _names(o["expert_inputs"], train.input_names, "expert_inputs")
+        if not sched_in and not o["scheduler_state"]:
+            raise MethodError("method 'moe': no scheduler: name at least one input in option scheduler or set scheduler_state=True")
+        sign = _sign_matrix(o["signs"], train.target_names, expert_in, o["bias"])
+        U, Y, T = _training_segments(train)
+        U_all, Y_all = np.concatenate(U), np.concatenate(Y)
+        u_mean, u_scale = U_all.mean(0), _scale(U_all)
+        y_mean, y_scale = Y_all.mean(0), _scale(Y_all)
+        Z = [(y - y_mean) / y_scale for y in Y]
+        # TV derivative with time counted in samples, so that tv_alpha does not depend on dt
+        dZ = []
+        for seg, z, t in zip(train.segments, Z, T):
+            try:
+                dZ.append(tv_derivative(z, (t - t[0]) / train.dt, o["tv_alpha"], order=o["tv_order"]) / train.dt)
+            except DataError as exc:
+                raise DataError(f"method 'moe', training segment {seg.id!r}: {exc}") from None
+        dZ_all = np.concatenate(dZ)
+        d_scale = np.sqrt((dZ_all**2).mean(0))
+        d_scale = np.where(d_scale > 0, d_scale, 1.0)
+        Us = (U_all - u_mean) / u_scale
+        Z_all = np.concatenate(Z)
+        si = [train.input_names.index(c) for c in sched_in]
+        ei = [train.input_names.index(c) for c in expert_in]
+        V = np.hstack([Us[:, si]] + ([Z_all] if o["scheduler_state"] else []))
+        X = np.hstack([Z_all, Us[:, ei]] + ([np.ones((len(Z_all), 1))] if o["bias"] else []))
+
+        device, dtype = _device(o["device"]), _dtype(o["dtype"])
+        gen = torch.Generator().manual_seed(int(rng.integers(0, 2**63 - 1)))
+        net = MixtureOfExperts(
+            V.shape[1], len(train.target_names), X.shape[1], hp["n_experts"], o["expert_hidden"], hp["gate_hidden"],
+            torch.as_tensor(sign), hp["k"], gen, dtype,
+        ).to(device)
+        with _cpu_threads(o["cpu_threads"], device):
+            history = _train(net, V, X, dZ_all / d_scale, hp, o, gen, device, dtype)
+        n_probe = min(o["probe_points"], len(V))
+        probe = V[np.sort(rng.choice(len(V), size=n_probe, replace=False))]
+        return MoEFitted(
+            params=hp, options=dict(o), input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+            scheduler_inputs=tuple(sched_in), expert_inputs=tuple(expert_in), sign=sign,
+            u_mean=u_mean, u_scale=u_scale, y_mean=y_mean, y_scale=y_scale, d_scale=d_scale,
+            y_min=Y_all.min(0), y_max=Y_all.max(0),
+            weights={k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()},
+            probe=probe, loss_history=history,
+        )
+
+    # -- prediction -------------------------------------------------------------------------
+    def predict(self, fitted: MoEFitted, data: Samples) -> SegmentPredictions:
+        self.check_mode(data.mode)
+        traj, _, diverged = simulate(fitted, data)
+        return SegmentPredictions([y[s.rows] for y, s in zip(traj, data.segments)], diverged)
+
+    def describe(self, fitted: MoEFitted) -> dict[str, Any]:
+        """Expert count, hyperparameters, local linear systems and the frozen-stability verdict."""
+        names = fitted.scheduler_names
+        net = build_network(fitted, torch.device("cpu"))
+        with torch.no_grad():
+            gate = net.gate(torch.as_tensor(fitted.probe, dtype=_dtype(fitted.options["dtype"]))).numpy()
+        # representative points: the median training scheduler point and each expert's home point
+        pts = np.vstack([np.median(fitted.probe, axis=0), fitted.probe[np.argmax(gate, axis=0)]])
+        labels = ["median"] + [f"expert {i} dominant" for i in range(gate.shape[1])]
+        raw = _unstandardise_sched(fitted, pts)
+        loc = local_coefficients(fitted, raw)
+        systems = [
+            {
+                "label": lab,
+                "scheduler": dict(zip(names, map(float, raw[j]))),
+                "gate": loc["gate"][j].tolist(),
+                "A": loc["A"][j].tolist(),
+                "B": loc["B"][j].tolist(),
+                "c": loc["c"][j].tolist(),
+            }
+            for j, lab in enumerate(labels)
+        ]
+        return {
+            "n_experts": int(fitted.params["n_experts"]),
+            "hyperparameters": {k: _plain(v) for k, v in fitted.params.items()},
+            "state": list(fitted.target_names),
+            "inputs": list(fitted.expert_inputs),
+            "schedulers": list(names),
+            "signs": {
+                f"d{t}/dt <- {c}": ("+" if s > 0 else "-")
+                for t, row in zip(fitted.target_names, fitted.sign)
+                for c, s in zip(fitted.regressor_names, row)
+                if s != 0
+            },
+            "local_systems": systems,
+            "frozen_stability": frozen_stability(fitted),
+            "final_loss": fitted.loss_history[-1] if fitted.loss_history else None,
+        }
+
+
+# -- public helpers -------------------------------------------------------------------------
+def resolve_params(params: Params) -> dict[str, Any]:
+    """Hyperparameters with defaults filled in and checked; raises MethodError naming the bad one."""
+    unknown = set(params) - set(HYPERPARAMETERS)
+    if unknown:
+        raise MethodError(f"method 'moe': unknown hyperparameter(s) {', '.join(sorted(unknown))}; known: {', '.join(HYPERPARAMETERS)}")
+    hp = {**HYPERPARAMETERS, **dict(params)}
+    for key in ("n_experts", "gate_hidden", "epochs"):
+        if float(hp[key]) != int(hp[key]) or int(hp[key]) < 1:
+            raise MethodError(f"method 'moe': hyperparameter {key}={hp[key]!r} must be a positive integer")
+        hp[key] = int(hp[key])
+    for key in ("beta1", "beta2", "k", "lr"):
+        hp[key] = float(hp[key])
+        if not np.isfinite(hp[key]) or hp[key] < 0 or (key in ("k", "lr") and hp[key] == 0):
+            raise MethodError(f"method 'moe': hyperparameter {key}={hp[key]!r} must be a finite number > 0 (beta1, beta2 >= 0)")
+    if hp["beta1"] + hp["beta2"] == 0:
+        raise MethodError("method 'moe': beta1 and beta2 are both 0, so the loss is empty; make at least one positive")
+    return hp
+
+
+def build_network(fitted: MoEFitted, device: torch.device) -> MixtureOfExperts:
+    """The torch module of ``fitted`` on ``device`` (weights copied from the stored arrays)."""
+    hp, dtype = fitted.params, _dtype(fitted.options["dtype"])
+    net = MixtureOfExperts(
+        len(fitted.scheduler_names), len(fitted.target_names), len(fitted.regressor_names), hp["n_experts"],
+        fitted.options["expert_hidden"], hp["gate_hidden"], torch.as_tensor(fitted.sign), hp["k"],
+        torch.Generator().manual_seed(0), dtype,
+    )
+    net.load_state_dict({k: torch.as_tensor(v) for k, v in fitted.weights.items()})
+    return net.to(device).eval()
+
+
+def local_coefficients(fitted: MoEFitted, points: np.ndarray) -> dict[str, np.ndarray]:
+    """The local linear systems dy/dt = A y + B u + c at scheduler ``points``, in raw units.
+
+    ``points`` is (P, n_sched) in raw units, columns in ``fitted.scheduler_names`` order.
+    Returns ``gate`` (P, M) and the gated ``A`` (P, k, k), ``B`` (P, k, n_u), ``c``
+    (P, k), plus each expert's ``expert_A`` (P, M, k, k), ``expert_B``, ``expert_c``.
+    """
+    points = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    if points.shape[1] != len(fitted.scheduler_names):
+        raise MethodError(
+            f"method 'moe': scheduler points have {points.shape[1]} columns; expected {len(fitted.scheduler_names)} "
+            f"({', '.join(fitted.scheduler_names)})"
+        )
+    net = build_network(fitted, torch.device("cpu"))
+    v = torch.as_tensor(_standardise_sched(fitted, points), dtype=_dtype(fitted.options["dtype"]))
+    with torch.no_grad():
+        G = net.coefficients(v).double().numpy()  # (P, M, k, q)
+        gate = net.gate(v).double().numpy()
+    k, ne = len(fitted.target_names), len(fitted.expert_inputs)
+    ei = [fitted.input_names.index(c) for c in fitted.expert_inputs]
+    u_mean, u_scale = fitted.u_mean[ei], fitted.u_scale[ei]
+    row = (fitted.y_scale * fitted.d_scale)[:, None]  # dy_j/dt = y_scale_j d_scale_j (G [z; u; 1])_j
+    A = G[..., :k] * row / fitted.y_scale
+    B = G[..., k : k + ne] * row / u_scale
+    g1 = G[..., k + ne] if fitted.options["bias"] else np.zeros(G.shape[:-1])
+    c = g1 * row[:, 0] - A @ fitted.y_mean - B @ u_mean
+    mix = lambda a: np.einsum("pm,pm...->p...", gate, a)  # noqa: E731
+    return {"gate": gate, "A": mix(A), "B": mix(B), "c": mix(c), "expert_A": A, "expert_B": B, "expert_c": c}
+
+
+def frozen_stability(fitted: MoEFitted) -> dict[str, Any]:
+    """Seed 003's frozen-stability verdict over the training scheduler points.
+
+    ``state_coefficients_negative``: every expert's own-state coefficient is < 0 at every
+    probe point (what the sign constraint promises, checked in floating point: a
+    softplus that underflows to 0 fails it). ``max_real_eigenvalue``: of the gated A(v)
+    over the probe points. ``stable`` needs both; for one output the first implies the
+    second, for several outputs cross-couplings can still destabilise A(v). With the
+    state among the schedulers (quasi-LPV) A(v) is the frozen coefficient, not a Jacobian.
+    """
+    loc = local_coefficients(fitted, _unstandardise_sched(fitted, fitted.probe))
+    diag = np.diagonal(loc["expert_A"], axis1=-2, axis2=-1)  # (P, M, k)
+    eig = np.linalg.eigvals(loc["A"]).real
+    return {
+        "state_coefficients_negative": bool((diag < 0).all()),
+        "max_state_coefficient": float(diag.max()),
+        "max_real_eigenvalue": float(eig.max()),
+        "stable": bool((diag < 0).all() and eig.max() < 0),
+        "n_points": int(len(fitted.probe)),
+    }
+
+
+def gate_weights(fitted: MoEFitted, data: Samples) -> list[np.ndarray]:
+    """Gate weights over time, one (N, n_experts) array per segment (rows as in ``predict``).
+
+    With the state among the schedulers the gate is evaluated along the simulated
+    trajectory (as in seed 003's figures), never the measured one.
+    """
+    _, gates, _ = simulate(fitted, data, record_gate=True)
+    return [g[s.rows] for g, s in zip(gates, data.segments)]
+
+
+def simulate(
+    fitted: MoEFitted, data: Samples, record_gate: bool = False, stepwise: bool | None = None
+) -> tuple[list[np.ndarray], list[np.ndarray] | None, np.ndarray]:
+    """Open-loop simulation of every segment of ``data`` from its y0, batched over segments.
+
+    Returns the trajectories (one (N_s, k) array per segment over all its raw rows), the
+    gate weights at every sample (when ``record_gate``), and the per-segment diverged flags.
+    ``stepwise`` forces (True) or forbids (False) evaluating the network at every
+    integrator stage; by default only state-scheduled models need it, and LPV models use
+    the equivalent affine step computed for whole chunks at once.
+    """
+    with _cpu_threads(fitted.options["cpu_threads"], _device(fitted.options["device"])), torch.no_grad():
+        return _simulate(fitted, data, record_gate, stepwise)
+
+
+def _simulate(
+    fitted: MoEFitted, data: Samples, record_gate: bool, stepwise: bool | None = None
+) -> tuple[list[np.ndarray], list[np.ndarray] | None, np.ndarray]:
+    o = fitted.options
+    segs = data.segments
+    if data.mode != "simulation":
+        raise MethodError(f"method 'moe' simulates open loop: give samples in mode 'simulation', not {data.mode!r}")
+    if tuple(data.target_names) != fitted.target_names:
+        raise MethodError(f"method 'moe': fitted for targets {fitted.target_names}, asked for {tuple(data.target_names)}")
+    missing = [c for c in fitted.input_names if c not in data.input_names]
+    if missing:
+        raise MethodError(f"method 'moe': the data lack input column(s) {', '.join(missing)} that the model was fitted on")
+    if not segs:
+        return [], ([] if record_gate else None), np.zeros(0, dtype=bool)
+    col = [data.input_names.index(c) for c in fitted.input_names]
+    device, dtype = _device(o["device"]), _dtype(o["dtype"])
+    lens = np.array([len(s.U) for s in segs])
+    S, L, k = len(segs), int(lens.max()), len(fitted.target_names)
+    U = np.empty((S, L, len(col)))
+    H = np.zeros((S, L - 1))
+    z0 = np.empty((S, k))
+    for j, s in enumerate(segs):
+        if s.y0 is None:
+            raise MethodError(f"method 'moe': segment {s.id!r} has no initial output y0 (samples must be in mode 'simulation')")
+        u = s.U[:, col]
+        if not (np.isfinite(u).all() and np.isfinite(s.y0).all()):
+            raise MethodError(f"method 'moe': segment {s.id!r} holds NaN or inf in its inputs or y0; clean or drop it")
+        U[j, : len(u)], U[j, len(u) :] = u, u[-1]
+        h = np.diff(s.t)
+        if (h <= 0).any():
+            raise MethodError(f"method 'moe': segment {s.id!r}: time does not increase at row {int(np.argmax(h <= 0)) + 1}")
+        H[j, : len(h)] = h  # padding steps have h = 0: the state stays put
+        z0[j] = (s.y0 - fitted.y_mean) / fitted.y_scale
+    as_t = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
+    span = fitted.y_max - fitted.y_min
+    sim = _Sim(
+        fitted=fitted,
+        net=build_network(fitted, device),
+        U=as_t((U - fitted.u_mean) / fitted.u_scale),
+        H=as_t(H),
+        lo=as_t((fitted.y_min - o["envelope"] * span - fitted.y_mean) / fitted.y_scale),
+        hi=as_t((fitted.y_max + o["envelope"] * span - fitted.y_mean) / fitted.y_scale),
+        d_scale=as_t(fitted.d_scale),
+        si=[fitted.input_names.index(c) for c in fitted.scheduler_inputs],
+        ei=[fitted.input_names.index(c) for c in fitted.expert_inputs],
+        record_gate=record_gate,
+    )
+    if stepwise is None:
+        stepwise = bool(o["scheduler_state"])
+    if not stepwise and o["scheduler_state"]:
+        raise MethodError("method 'moe': a state-scheduled (quasi-LPV) model can only be simulated step by step")
+    traj, gates, alive = (sim.stepwise if stepwise else sim.affine)(as_t(z0))
+    Y = traj.double().cpu().numpy() * fitted.y_scale + fitted.y_mean
+    out = [Y[j, : lens[j]] for j in range(S)]
+    G_out = None if gates is None else [g[: lens[j]] for j, g in enumerate(gates.double().cpu().numpy())]
+    return out, G_out, ~alive.cpu().numpy()
+
+
+@dataclass
+class _Sim:
+    """One batched simulation: standardised padded inputs (S, L, n_u), steps H (S, L-1), envelope."""
+
+    fitted: MoEFitted
+    net: MixtureOfExperts
+    U: torch.Tensor
+    H: torch.Tensor
+    lo: torch.Tensor
+    hi: torch.Tensor
+    d_scale: torch.Tensor
+    si: list[int]
+    ei: list[int]
+    record_gate: bool
+
+    def _regressors(self, z: torch.Tensor | None, u: torch.Tensor) -> torch.Tensor:
+        """[z; u_e; 1] (..., q); with ``z=None`` only the input part [u_e; 1]."""
+        parts = [] if z is None else [z]
+        parts.append(u[..., self.ei])
+        if self.fitted.options["bias"]:
+            parts.append(torch.ones_like(u[..., :1]))
+        return torch.cat(parts, dim=-1)
+
+    def _ok(self, z: torch.Tensor) -> torch.Tensor:
+        return torch.isfinite(z).all(-1) & ((z >= self.lo) & (z <= self.hi)).all(-1)
+
+    def _outputs(self, S: int, L: int, k: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+        traj = torch.empty((S, L, k), dtype=self.U.dtype, device=self.U.device)
+        m = self.fitted.params["n_experts"]
+        gates = torch.empty((S, L, m), dtype=self.U.dtype, device=self.U.device) if self.record_gate else None
+        return traj, gates
+
+    def stepwise(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """Any model (also quasi-LPV): the network is evaluated at every integrator stage."""
+        o, (S, L, _), k = self.fitted.options, self.U.shape, z.shape[1]
+
+        def rhs(zz: torch.Tensor, uu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            v = torch.cat([uu[:, self.si]] + ([zz] if o["scheduler_state"] else []), dim=1)
+            G, alpha = self.net.mixed(v)
+            return self.d_scale * torch.einsum("skq,sq->sk", G, self._regressors(zz, uu)), alpha
+
+        step = _rk4 if o["integrator"] == "rk4" else _euler
+        hold = o["input_interp"] == "hold"
+        traj, gates = self._outputs(S, L, k)
+        alive = torch.ones(S, dtype=torch.bool, device=z.device)
+        traj[:, 0] = z
+        for n in range(L - 1):
+            u0, u1 = self.U[:, n], self.U[:, n + 1]
+            z_next, alpha = step(rhs, z, u0, u0 if hold else u1, self.H[:, n : n + 1])
+            if gates is not None:
+                gates[:, n] = alpha
+            alive &= self._ok(z_next)
+            z = torch.where(alive[:, None], z_next, z)  # a diverged segment is held where it left
+            traj[:, n + 1] = z
+        if gates is not None:
+            gates[:, L - 1] = rhs(z, self.U[:, L - 1])[1]
+        return traj, gates, alive
+
+    def _affine_parts(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """dz/dt = A z + w at inputs ``u`` (S, C, n_u): A (S, C, k, k), w (S, C, k), gate (S, C, M)."""
+        G, alpha = self.net.mixed(u[..., self.si])
+        k = G.shape[-2]
+        A = self.d_scale[:, None] * G[..., :k]
+        w = self.d_scale * torch.einsum("sckq,scq->sck", G[..., k:], self._regressors(None, u))
+        return A, w, alpha
+
+    def affine(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """LPV models (schedulers free of the state): dz/dt = A(t) z + w(t), so one RK4 or Euler
+        step is z' = Phi z + gamma with Phi, gamma computed for a whole chunk of steps at once;
+        only the recurrence itself runs step by step."""
+        o, (S, L, _), k = self.fitted.options, self.U.shape, z.shape[1]
+        traj, gates = self._outputs(S, L, k)
+        alive = torch.ones(S, dtype=torch.bool, device=z.device)
+        eye = torch.eye(k, dtype=z.dtype, device=z.device)
+        traj[:, 0] = z
+        width = S * self.fitted.params["n_experts"] * k * (k + len(self.ei) + 1) * 3
+        chunk = int(np.clip(4_000_000 // max(width, 1), 16, max(L - 1, 16)))
+        for a in range(0, L - 1, chunk):
+            b = min(L - 1, a + chunk)
+            A, w, alpha = self._affine_parts(self.U[:, a : b + 1])  # at samples a..b
+            if gates is not None:
+                gates[:, a : b + 1] = alpha
+            h = self.H[:, a:b, None]
+            A0, w0 = A[:, :-1], w[:, :-1]
+            if o["integrator"] == "euler":
+                Phi, gamma = eye + h[..., None] * A0, h * w0
+            else:
+                if o["input_interp"] == "hold":
+                    Am, wm, A1, w1 = A0, w0, A0, w0
+                else:
+                    Am, wm, _ = self._affine_parts(0.5 * (self.U[:, a:b] + self.U[:, a + 1 : b + 1]))
+                    A1, w1 = A[:, 1:], w[:, 1:]
+                hh = h[..., None]
+                mv = lambda M, x: (M @ x[..., None])[..., 0]  # noqa: E731
+                P1, q1 = A0, w0
+                P2, q2 = Am @ (eye + 0.5 * hh * P1), mv(Am, 0.5 * h * q1) + wm
+                P3, q3 = Am @ (eye + 0.5 * hh * P2), mv(Am, 0.5 * h * q2) + wm
+                P4, q4 = A1 @ (eye + hh * P3), mv(A1, h * q3) + w1
+                Phi = eye + hh / 6.0 * (P1 + 2 * P2 + 2 * P3 + P4)
+                gamma = h / 6.0 * (q1 + 2 * q2 + 2 * q3 + q4)
+            part = torch.empty((S, b - a, k), dtype=z.dtype, device=z.device)
+            zz = z
+            for n in range(b - a):
+                zz = (Phi[:, n] @ zz[..., None])[..., 0] + gamma[:, n]
+                part[:, n] = zz
+            # divergence: keep the valid prefix of each segment, hold its last valid state after
+            valid = torch.cumprod(self._ok(part).to(torch.int8), dim=1).bool() & alive[:, None]
+            n_valid = valid.sum(1)
+            last = torch.where(
+                (n_valid > 0)[:, None], part[torch.arange(S, device=z.device), (n_valid - 1).clamp(min=0)], z
+            )
+            part = torch.where(valid[..., None], part, last[:, None, :])
+            traj[:, a + 1 : b + 1] = part
+            z, alive = part[:, -1], valid[:, -1]
+        return traj, gates, alive
+
+
+# -- internals ---------------------------------------------------------------------------------
+@contextmanager
+def _cpu_threads(limit: int | None, device: torch.device) -> Iterator[None]:
+    """Cap torch's intra-op threads on CPU for the duration, then restore them.
+
+    The networks are tiny: per-op thread fan-out buys nothing and, on busy shared cores,
+    each synchronised reduction (the gate's softmax) can stall for a scheduler quantum.
+    Parallelism belongs to the runner's process pool.
+    """
+    before = torch.get_num_threads()
+    if limit is None or device.type != "cpu" or limit >= before:
+        yield
+        return
+    torch.set_num_threads(limit)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+Rhs = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+
+
+def _euler(f: Rhs, z: torch.Tensor, u0: torch.Tensor, u1: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    k1, alpha = f(z, u0)
+    return z + h * k1, alpha
+
+
+def _rk4(f: Rhs, z: torch.Tensor, u0: torch.Tensor, u1: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Classical RK4 with the inputs linearly interpolated to the half step."""
+    um = 0.5 * (u0 + u1)
+    k1, alpha = f(z, u0)
+    k2, _ = f(z + 0.5 * h * k1, um)
+    k3, _ = f(z + 0.5 * h * k2, um)
+    k4, _ = f(z + h * k3, u1)
+    return z + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4), alpha
+
+
+def _train(
+    net: MixtureOfExperts, V: np.ndarray, X: np.ndarray, D: np.ndarray, hp: dict[str, Any], o: dict[str, Any],
+    gen: torch.Generator, device: torch.device, dtype: torch.dtype,
+) -> list[float]:
+    """Adam on seed 003's loss with shuffled minibatches; returns the mean loss per epoch."""
+    Vt, Xt, Dt = (torch.as_tensor(a, dtype=dtype, device=device) for a in (V, X, D))
+    opt = torch.optim.Adam(net.parameters(), lr=hp["lr"])
+    n, bs = len(Vt), int(o["batch_size"])
+    history = []
+    net.train()
+    for _ in range(hp["epochs"]):
+        perm = torch.randperm(n, generator=gen).to(device)
+        total = torch.zeros((), dtype=dtype, device=device)
+        for a in range(0, n, bs):
+            idx = perm[a : a + bs]
+            f, alpha = net(Vt[idx], Xt[idx])
+            loss = moe_loss(f, alpha, Dt[idx], hp["beta1"], hp["beta2"], o["competitive"])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += loss.detach() * len(idx)
+        history.append(float(total) / n)
+    net.eval()
+    if not np.isfinite(history[-1]):
+        raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or check the data")
+    return history
+
+
+def _training_segments(train: Samples) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Per-segment raw inputs, targets and times; whole segments with finite values only."""
+    if not train.has_targets:
+        raise MethodError("method 'moe': the training samples carry no targets")
+    U, Y, T = [], [], []
+    for s in train.segments:
+        if len(s.rows) != len(s.U) or not np.array_equal(s.rows, np.arange(len(s.U))):
+            raise MethodError(
+                f"method 'moe': training segment {s.id!r} is a row subsample ({len(s.rows)} of {len(s.U)} rows); "
+                "derivative targets need whole segments: resample by segment, not by row"
+            )
+        if len(s.U) < 3:
+            raise MethodError(f"method 'moe': training segment {s.id!r} has {len(s.U)} rows; at least 3 are needed for derivatives")
+        for what, a, names in (("inputs", s.U, train.input_names), ("targets", s.y, train.target_names)):
+            bad = np.argwhere(~np.isfinite(a))
+            if bad.size:
+                r, c = bad[0]
+                raise MethodError(f"method 'moe': training segment {s.id!r}, {what} column {names[c]!r}, row {r}: NaN or inf")
+        U.append(s.U)
+        Y.append(s.y)
+        T.append(s.t)
+    if not U:
+        raise MethodError("method 'moe': the training samples are empty; give at least one segment")
+    return U, Y, T
+
+
+def _names(chosen: Sequence[str] | None, available: Sequence[str], option: str) -> list[str]:
+    if chosen is None:
+        return list(available)
+    unknown = [c for c in chosen if c not in available]
+    if unknown:
+        raise MethodError(
+            f"method 'moe': option {option} names {', '.join(map(repr, unknown))}, not among the run-time inputs "
+            f"({', '.join(available)})"
+        )
+    return list(chosen)
+
+
+def _sign_matrix(signs: Any, targets: Sequence[str], inputs: Sequence[str], bias: bool) -> np.ndarray:
+    """(k, q) signs over [z; u; 1]: a target name constrains its own-state coefficient, an input its column."""
+    k, q = len(targets), len(targets) + len(inputs) + int(bias)
+    sign = np.zeros((k, q))
+    if signs == "stable":
+        sign[np.arange(k), np.arange(k)] = -1
+    elif isinstance(signs, Mapping):
+        for name, word in signs.items():
+            if name in targets:
+                j = list(targets).index(name)
+                sign[j, j] = _SIGN_WORDS[word]
+            elif name in inputs:
+                sign[:, k + list(inputs).index(name)] = _SIGN_WORDS[word]
+            else:
+                raise MethodError(
+                    f"method 'moe': option signs names {name!r}, which is neither a target ({', '.join(targets)}) "
+                    f"nor an expert input ({', '.join(inputs)})"
+                )
+    return sign
+
+
+def _standardise_sched(fitted: MoEFitted, raw: np.ndarray) -> np.ndarray:
+    si = [fitted.input_names.index(c) for c in fitted.scheduler_inputs]
+    mean = np.r_[fitted.u_mean[si], fitted.y_mean if fitted.options["scheduler_state"] else []]
+    scale = np.r_[fitted.u_scale[si], fitted.y_scale if fitted.options["scheduler_state"] else []]
+    return (raw - mean) / scale
+
+
+def _unstandardise_sched(fitted: MoEFitted, std: np.ndarray) -> np.ndarray:
+    zero = _standardise_sched(fitted, np.zeros(std.shape[-1]))
+    unit = _standardise_sched(fitted, np.ones(std.shape[-1])) - zero
+    return (std - zero) / unit
+
+
+def _scale(values: np.ndarray) -> np.ndarray:
+    """Column standard deviations usable as divisors (a constant column keeps scale 1)."""
+    s = values.std(0)
+    return np.where(s > 1e-9 * (1.0 + np.abs(values.mean(0))), s, 1.0)
+
+
+def _device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise MethodError("method 'moe': device='cuda' but torch sees no CUDA device; use device='auto' or 'cpu'")
+    return torch.device(name)
+
+
+def _dtype(name: str) -> torch.dtype:
+    return torch.float64 if name == "float64" else torch.float32
+
+
+def _plain(v: Any) -> Any:
+    return v.item() if isinstance(v, np.generic) else v

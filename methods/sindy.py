@@ -1,0 +1,518 @@
+"""SINDy with control inputs: sparse polynomial ODEs fitted by pysindy, simulated open loop.
+
+The state is the target(s) and the control is the run-time inputs, both standardised
+with training statistics. Derivatives come from a regularised differentiator of the
+``derivative`` package (through pysindy's ``SINDyDerivative`` wrapper), computed once
+per training set and shared by every grid point. Prediction never calls pysindy's
+``simulate`` (one scipy ``solve_ivp`` per segment); it steps every segment at once with
+a fixed-step integrator (RK4 or Euler at the data's sample period, inputs held between
+samples). A trajectory that goes non-finite or leaves a bounded envelope around the
+training range is stopped, held at its last in-envelope value and flagged diverged
+(seed 003 reports SINDy blow-ups; they must be counted, never silently dropped).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import pysindy as ps
+from threadpoolctl import threadpool_limits
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
+
+DERIVATIVE_KINDS = ("trend_filtered", "kalman")
+"""Regularised differentiators of the ``derivative`` package that this method offers.
+
+``trend_filtered`` with order 0 is total-variation regularised differentiation (the
+seed's choice); ``kalman`` is the Kalman (RTS) smoother, quadratic regularisation."""
+DEFAULT_DERIVATIVE_ALPHA = {"trend_filtered": 1e-3, "kalman": 1.0}
+INTEGRATORS = ("rk4", "euler")
+DEFAULT_PARAMS = {"degree": 2, "threshold": 0.1, "alpha": 0.05}
+MIN_ROWS = 4
+"""A training segment needs at least this many rows to be differentiated."""
+
+
+@dataclass
+class SINDyFit:
+    """A fitted SINDy model and everything needed to simulate and explain it.
+
+    All coefficients act on standardised signals, ``(v - mean) / std``, with time in
+    units of ``time_scale`` seconds. ``powers`` (n_terms, n_states + n_controls) gives
+    the exponent of each signal in each library term (states first, then controls).
+    ``lower``/``upper`` bound the standardised state: leaving them is divergence.
+    """
+
+    model: Any
+    coef: np.ndarray
+    powers: np.ndarray
+    state_mean: np.ndarray
+    state_std: np.ndarray
+    control_mean: np.ndarray
+    control_std: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    time_scale: float
+    params: dict[str, Any]
+    state_names: tuple[str, ...]
+    control_names: tuple[str, ...]
+    derivative: str
+    derivative_alpha: float
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n_states(self) -> int:
+        return self.coef.shape[0]
+
+
+@dataclass
+class _Prepared:
+    """Standardised training trajectories and their derivatives (grid-independent)."""
+
+    x: list[np.ndarray]
+    u: list[np.ndarray] | None
+    t: list[np.ndarray]
+    x_dot: list[np.ndarray]
+    state_mean: np.ndarray
+    state_std: np.ndarray
+    control_mean: np.ndarray
+    control_std: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    notes: list[str]
+
+
+# --------------------------------------------------------------------------- numerics
+def library_features(z: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """Polynomial library terms of the rows of ``z`` (n, n_vars) -> (n, n_terms).
+
+    Term j is ``prod_v z[:, v] ** powers[j, v]``; this matches pysindy's
+    ``PolynomialLibrary`` for the same ``powers_`` and is vectorised over rows.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    degree = int(powers.max()) if powers.size else 0
+    table = np.empty((degree + 1, *z.shape))
+    table[0] = 1.0
+    for p in range(1, degree + 1):
+        table[p] = table[p - 1] * z
+    picked = table[powers, :, np.arange(powers.shape[1])[None, :]]  # (n_terms, n_vars, n)
+    return picked.prod(axis=1).T
+
+
+def model_rhs(coef: np.ndarray, powers: np.ndarray, x: np.ndarray, u: np.ndarray | None) -> np.ndarray:
+    """dx/dt of a polynomial model for a batch of states (n, k) and controls (n, m)."""
+    z = x if u is None or u.shape[1] == 0 else np.hstack([x, u])
+    return library_features(z, powers) @ coef.T
+
+
+def simulate_batch(
+    coef: np.ndarray,
+    powers: np.ndarray,
+    x0: np.ndarray,
+    controls: Sequence[np.ndarray],
+    times: Sequence[np.ndarray],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    integrator: str = "rk4",
+    substeps: int = 1,
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Simulate ``dx/dt = coef @ theta(x, u)`` open loop on many segments at once.
+
+    ``x0`` (S, k) are the initial states; ``controls[s]`` (N_s, m) and ``times[s]``
+    (N_s,) the inputs and sample times of segment s. Inputs are held constant over
+    each sample interval (zero-order hold); each interval is integrated with
+    ``substeps`` fixed steps of RK4 or explicit Euler. All segments still running are
+    advanced together in one vectorised step; segments are stored flat (no padding).
+
+    A segment whose state turns non-finite or leaves [lower, upper] is stopped: its
+    state is held at the last in-envelope value for the rest of its rows and it is
+    flagged. Returns one (N_s, k) trajectory per segment and the flags (S,).
+    """
+    if integrator not in INTEGRATORS:
+        raise MethodError(f"sindy: unknown integrator {integrator!r}; use one of {', '.join(INTEGRATORS)}")
+    x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
+    n_seg, k = x0.shape
+    lengths = np.array([len(t) for t in times], dtype=np.int64)
+    if len(controls) != n_seg or lengths.size != n_seg:
+        raise MethodError("sindy: simulate_batch needs one control array and one time array per initial state")
+    m = controls[0].shape[1] if n_seg and controls[0].ndim == 2 else 0
+    offsets = np.r_[0, np.cumsum(lengths)]
+    out = np.empty((offsets[-1], k))
+    diverged = np.zeros(n_seg, dtype=bool)
+    if n_seg == 0:
+        return [], diverged
+    u_flat = np.concatenate([np.asarray(c, dtype=np.float64).reshape(len(c), m) for c in controls])
+    t_flat = np.concatenate([np.asarray(t, dtype=np.float64) for t in times])
+
+    order = np.argsort(-lengths, kind="stable")  # longest first: live segments are a prefix
+    sorted_len = lengths[order]
+    sorted_off = offsets[:-1][order]
+    state = x0[order].copy()
+    alive = np.ones(n_seg, dtype=bool)  # not diverged (in sorted order)
+    out[sorted_off[sorted_len > 0]] = state[sorted_len > 0]
+
+    def rhs(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return model_rhs(coef, powers, x, u if m else None)
+
+    with np.errstate(all="ignore"):
+        for i in range(int(lengths.max()) - 1):
+            n_live = int(np.searchsorted(-sorted_len, -(i + 2), side="right"))  # segments with row i+1
+            step = np.flatnonzero(alive[:n_live])
+            if step.size:
+                rows = sorted_off[step] + i
+                x = state[step]
+                u = u_flat[rows]
+                h = ((t_flat[rows + 1] - t_flat[rows]) / substeps)[:, None]
+                for _ in range(substeps):
+                    if integrator == "euler":
+                        x = x + h * rhs(x, u)
+                    else:
+                        k1 = rhs(x, u)
+                        k2 = rhs(x + 0.5 * h * k1, u)
+                        k3 = rhs(x + 0.5 * h * k2, u)
+                        k4 = rhs(x + h * k3, u)
+                        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+                bad = ~np.isfinite(x).all(axis=1) | (x < lower).any(axis=1) | (x > upper).any(axis=1)
+                good = step[~bad]
+                state[good] = x[~bad]
+                alive[step[bad]] = False
+            out[sorted_off[:n_live] + i + 1] = state[:n_live]
+    diverged[order] = ~alive
+    return [out[a:b] for a, b in zip(offsets[:-1], offsets[1:])], diverged
+
+
+def differentiate(
+    x: np.ndarray,
+    dt: float,
+    *,
+    kind: str = "trend_filtered",
+    alpha: float = 1e-3,
+    chunk: int = 256,
+    margin: int = 32,
+    max_iter: int = 20000,
+) -> np.ndarray:
+    """Regularised time derivative of uniformly sampled signals ``x`` (n, k).
+
+    Uses pysindy's ``SINDyDerivative`` wrapper of the ``derivative`` package:
+    ``trend_filtered`` (order 0: total-variation regularisation) or ``kalman``. Both
+    work with dense n x n matrices, so long signals are cut into overlapping chunks of
+    ``chunk`` rows; each chunk contributes its interior (``margin`` rows are dropped
+    at each inner edge). The regularisation acts in sample-index time, which makes
+    ``alpha`` independent of the sample period and keeps the LASSO well scaled.
+    """
+    if kind not in DERIVATIVE_KINDS:
+        raise MethodError(f"sindy: unknown derivative {kind!r}; use one of {', '.join(DERIVATIVE_KINDS)}")
+    x = np.asarray(x, dtype=np.float64)
+    n = x.shape[0]
+    if kind == "trend_filtered":
+        diff = ps.SINDyDerivative(kind="trend_filtered", order=0, alpha=alpha, max_iter=max_iter, save_smooth=False)
+    else:
+        diff = ps.SINDyDerivative(kind="kalman", alpha=alpha, save_smooth=False)
+    if chunk < 2 * margin + 8:
+        raise MethodError(f"sindy: derivative_chunk ({chunk}) must exceed 2 x derivative_margin + 8 ({2 * margin + 8})")
+    if n <= chunk:
+        starts, chunk = [0], n
+    else:
+        starts = list(range(0, n - chunk, chunk - 2 * margin)) + [n - chunk]
+    out = np.empty_like(x)
+    done = 0
+    t_chunk = np.arange(chunk, dtype=np.float64)
+    with threadpool_limits(limits=1, user_api="blas"):  # small dense solves: threads only contend
+        for a in starts:
+            b = a + chunk
+            keep_to = n if b == n else b - margin
+            d = np.asarray(diff(x[a:b], t=t_chunk))
+            out[done:keep_to] = d[done - a:keep_to - a]
+            done = keep_to
+    return out / dt
+
+
+def raw_coefficients(fit: SINDyFit) -> np.ndarray:
+    """Coefficients (k, n_terms) of the same polynomial written in raw signal units.
+
+    Each standardised term prod_v ((v - m_v) / s_v) ** p_v is expanded binomially;
+    the result multiplies raw monomials of the same library and gives d(raw)/dt in
+    units per second. Loops run over library terms, never over samples.
+    """
+    means = np.r_[fit.state_mean, fit.control_mean]
+    stds = np.r_[fit.state_std, fit.control_std]
+    index = {tuple(int(p) for p in row): j for j, row in enumerate(fit.powers)}
+    raw = np.zeros_like(fit.coef)
+    for j, row in enumerate(fit.powers):
+        if not fit.coef[:, j].any():
+            continue
+        ranges = [range(int(p) + 1) for p in row]
+        for kept in itertools.product(*ranges):
+            factor = 1.0
+            for v, (p, q) in enumerate(zip(row, kept)):
+                factor *= math.comb(int(p), q) * (-means[v]) ** (int(p) - q) / stds[v] ** int(p)
+            raw[:, index[kept]] += fit.coef[:, j] * factor
+    return raw * (fit.state_std / fit.time_scale)[:, None]
+
+
+def _format_terms(coef_row: np.ndarray, names: Sequence[str], digits: int = 4) -> str:
+    terms = [f"{c:+.{digits}g} {n}" if n != "1" else f"{c:+.{digits}g}" for c, n in zip(coef_row, names) if c != 0]
+    return " ".join(terms) if terms else "0"
+
+
+# --------------------------------------------------------------------------- method
+class SINDy(Method):
+    """Sparse identification of nonlinear dynamics with control (seed 003's benchmark)."""
+
+    name = "sindy"
+    family = "data-driven"
+    modes = frozenset({"simulation"})
+    summary = "pysindy polynomial ODE with control inputs, STLSQ, batched open-loop simulation"
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "degrees": (1, 2, 3),
+            "threshold_range": (1e-2, 1e3),
+            "n_thresholds": 4,
+            "alpha_range": (1e-4, 1e-1),
+            "n_alphas": 3,
+            "derivative": "trend_filtered",
+            "derivative_alpha": None,
+            "derivative_chunk": 256,
+            "derivative_margin": 32,
+            "derivative_max_iter": 20000,
+            "time_scale": 1.0,
+            "integrator": "rk4",
+            "substeps": 1,
+            "envelope": 10.0,
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        o = self.options
+        if o["derivative"] not in DERIVATIVE_KINDS:
+            raise MethodError(f"sindy: option derivative={o['derivative']!r}; use one of {', '.join(DERIVATIVE_KINDS)}")
+        if o["integrator"] not in INTEGRATORS:
+            raise MethodError(f"sindy: option integrator={o['integrator']!r}; use one of {', '.join(INTEGRATORS)}")
+        for key in ("time_scale", "envelope"):
+            if not (isinstance(o[key], (int, float)) and o[key] > 0):
+                raise MethodError(f"sindy: option {key} must be a positive number, got {o[key]!r}")
+        for key in ("substeps", "n_thresholds", "n_alphas", "derivative_chunk", "derivative_max_iter"):
+            if not (isinstance(o[key], (int, np.integer)) and o[key] >= 1):
+                raise MethodError(f"sindy: option {key} must be a positive integer, got {o[key]!r}")
+        if o["derivative_alpha"] is not None and not o["derivative_alpha"] > 0:
+            raise MethodError(f"sindy: option derivative_alpha must be positive, got {o['derivative_alpha']!r}")
+        for key in ("threshold_range", "alpha_range"):
+            lo, hi = o[key]
+            if not 0 < lo <= hi:
+                raise MethodError(f"sindy: option {key} must be (low, high) with 0 < low <= high, got {o[key]!r}")
+        for d in o["degrees"]:
+            self._check_degree(d, "option degrees")
+
+    @staticmethod
+    def _check_degree(d: Any, where: str) -> int:
+        numeric = isinstance(d, (int, np.integer, float, np.floating)) and not isinstance(d, (bool, np.bool_))
+        if not (numeric and float(d).is_integer() and 1 <= d <= 5):
+            raise MethodError(f"sindy: {where}: polynomial degree must be an integer from 1 to 5, got {d!r}")
+        return int(d)
+
+    @property
+    def derivative_alpha(self) -> float:
+        a = self.options["derivative_alpha"]
+        return float(DEFAULT_DERIVATIVE_ALPHA[self.options["derivative"]] if a is None else a)
+
+    # -- protocol ----------------------------------------------------------------
+    def search_space(self, data: Samples) -> SearchSpace:
+        """Degree x STLSQ threshold (log grid) x ridge alpha (log grid), seed 003's ranges."""
+        o = self.options
+        return {
+            "degree": np.array([int(d) for d in o["degrees"]]),
+            "threshold": log_grid(*np.log10(o["threshold_range"]), o["n_thresholds"]),
+            "alpha": log_grid(*np.log10(o["alpha_range"]), o["n_alphas"]),
+        }
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> SINDyFit:
+        """Fit on all training segments at once. Deterministic: ``rng`` is not drawn from."""
+        return self._fit_prepared(self._prepare(train), train, params)
+
+    def predict(self, fitted: SINDyFit, data: Samples) -> SegmentPredictions:
+        """Open-loop trajectories from each segment's measured y0, all segments batched."""
+        self.check_mode(data.mode)
+        self._check_signals(fitted, data)
+        if not data.segments:
+            return SegmentPredictions([], [])
+        x0, controls, times = [], [], []
+        for s in data.segments:
+            if s.y0 is None or not np.all(np.isfinite(s.y0)):
+                raise MethodError(
+                    f"sindy: segment {s.id!r} has no finite initial output y0; simulation needs the measured "
+                    "outputs at the first row"
+                )
+            x0.append((np.asarray(s.y0, dtype=np.float64) - fitted.state_mean) / fitted.state_std)
+            controls.append((s.U - fitted.control_mean) / fitted.control_std)
+            times.append(s.t / fitted.time_scale)
+        trajs, diverged = simulate_batch(
+            fitted.coef, fitted.powers, np.vstack(x0), controls, times, fitted.lower, fitted.upper,
+            integrator=self.options["integrator"], substeps=int(self.options["substeps"]),
+        )
+        arrays = [(tr * fitted.state_std + fitted.state_mean)[s.rows] for tr, s in zip(trajs, data.segments)]
+        return SegmentPredictions(arrays, diverged)
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Every grid point shares one standardisation and one differentiation of the training data."""
+        prepared = self._prepare(train)
+        out = []
+        for params in grid:
+            fitted = self._fit_prepared(prepared, train, params)
+            out.append(np.concatenate(self.predict(fitted, data)))
+        return np.stack(out)
+
+    def describe(self, fitted: SINDyFit) -> dict[str, Any]:
+        """Equations (standardised and in raw units), term count and the selected parameters."""
+        names = fitted.model.get_feature_names()
+        raw = raw_coefficients(fitted)
+        raw_names = ps.PolynomialLibrary(degree=fitted.params["degree"]).fit(
+            np.zeros((1, fitted.powers.shape[1]))
+        ).get_feature_names(list(fitted.state_names) + list(fitted.control_names))
+        lhs = [f"d({n})/dt" for n in fitted.state_names]
+        return {
+            "equations": [f"{l} = {eq}" for l, eq in zip(lhs, fitted.model.equations(precision=4))],
+            "equations_units": "standardised signals (z-scores with training mean/std); time in units of "
+            f"{fitted.time_scale:g} s",
+            "equations_raw": [f"{l} = {_format_terms(row, raw_names)}" for l, row in zip(lhs, raw)],
+            "term_count": int(np.count_nonzero(fitted.coef)),
+            "terms_per_equation": [int(c) for c in np.count_nonzero(fitted.coef, axis=1)],
+            "library_size": int(fitted.powers.shape[0]),
+            "degree": int(fitted.params["degree"]),
+            "threshold": float(fitted.params["threshold"]),
+            "alpha": float(fitted.params["alpha"]),
+            "feature_names": list(names),
+            "coefficients": fitted.coef.tolist(),
+            "state": list(fitted.state_names),
+            "controls": list(fitted.control_names),
+            "standardisation": {
+                "state_mean": fitted.state_mean.tolist(), "state_std": fitted.state_std.tolist(),
+                "control_mean": fitted.control_mean.tolist(), "control_std": fitted.control_std.tolist(),
+            },
+            "envelope": {"lower": (fitted.lower * fitted.state_std + fitted.state_mean).tolist(),
+                         "upper": (fitted.upper * fitted.state_std + fitted.state_mean).tolist()},
+            "derivative": fitted.derivative,
+            "derivative_alpha": fitted.derivative_alpha,
+            "notes": list(fitted.notes),
+        }
+
+    # -- internals ---------------------------------------------------------------
+    def _check_signals(self, fitted: SINDyFit, data: Samples) -> None:
+        if tuple(data.target_names) != fitted.state_names or tuple(data.input_names) != fitted.control_names:
+            raise MethodError(
+                f"sindy: model was fitted for targets {list(fitted.state_names)} with inputs "
+                f"{list(fitted.control_names)}, but the data has targets {list(data.target_names)} with inputs "
+                f"{list(data.input_names)}; predict with samples built for the same columns"
+            )
+
+    def _params(self, params: Params) -> dict[str, Any]:
+        unknown = set(params) - set(DEFAULT_PARAMS)
+        if unknown:
+            raise MethodError(
+                f"sindy: unknown parameter(s) {', '.join(sorted(unknown))}; known: {', '.join(DEFAULT_PARAMS)}"
+            )
+        p = {**DEFAULT_PARAMS, **params}
+        p["degree"] = self._check_degree(p["degree"], "parameter degree")
+        for key in ("threshold", "alpha"):
+            if not (np.isfinite(p[key]) and p[key] >= 0):
+                raise MethodError(f"sindy: parameter {key} must be a finite number >= 0, got {p[key]!r}")
+            p[key] = float(p[key])
+        return p
+
+    def _prepare(self, train: Samples) -> _Prepared:
+        """Standardise the training segments and differentiate each one."""
+        self.check_mode(train.mode)
+        if not train.has_targets:
+            raise MethodError("sindy: training samples carry no targets")
+        notes: list[str] = []
+        segs = []
+        for s in train.segments:
+            rows = np.asarray(s.rows)
+            if rows.size and np.any(np.diff(rows) != 1):
+                raise MethodError(
+                    f"sindy: training segment {s.id!r} is not a contiguous run of rows (resampled rows?); "
+                    "SINDy differentiates trajectories, so resample whole segments (block/segment bootstrap)"
+                )
+            if len(s) < MIN_ROWS:
+                notes.append(f"training segment {s.id!r} skipped: {len(s)} rows, fewer than {MIN_ROWS}")
+                continue
+            segs.append((s, rows))
+        if not segs:
+            raise MethodError(f"sindy: no training segment has at least {MIN_ROWS} rows; nothing to differentiate")
+        y_all = np.concatenate([s.y for s, _ in segs])
+        u_all = np.concatenate([s.U[rows] for s, rows in segs])
+        x_mean, x_std = y_all.mean(axis=0), y_all.std(axis=0)
+        u_mean, u_std = u_all.mean(axis=0), u_all.std(axis=0)
+        for names, std, role in ((train.target_names, x_std, "target"), (train.input_names, u_std, "input")):
+            flat = [n for n, sd in zip(names, std) if not sd > 0]
+            if flat:
+                raise MethodError(
+                    f"sindy: {role} column(s) {', '.join(flat)} constant over the training data; they cannot be "
+                    "standardised; drop them from the experiment's inputs/targets"
+                )
+        ts = float(self.options["time_scale"])
+        xs, us, tt, xd = [], [], [], []
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for s, rows in segs:
+                t = np.asarray(s.t, dtype=np.float64)[rows]
+                steps = np.diff(t)
+                dt = steps[0]
+                if not (dt > 0 and np.allclose(steps, dt, rtol=1e-6, atol=0)):
+                    bad = int(np.flatnonzero(~np.isclose(steps, dt, rtol=1e-6, atol=0) | (steps <= 0))[0]) + 1
+                    raise MethodError(
+                        f"sindy: training segment {s.id!r}: time is not uniformly sampled at row {bad} "
+                        f"(step {steps[bad - 1]:g} s, expected {dt:g} s); split the segment at gaps"
+                    )
+                x = (s.y - x_mean) / x_std
+                xs.append(x)
+                us.append((s.U[rows] - u_mean) / u_std)
+                tt.append(t / ts)
+                xd.append(differentiate(
+                    x, dt / ts, kind=self.options["derivative"], alpha=self.derivative_alpha,
+                    chunk=int(self.options["derivative_chunk"]), margin=int(self.options["derivative_margin"]),
+                    max_iter=int(self.options["derivative_max_iter"]),
+                ))
+        n_conv = sum("converge" in str(w.message) for w in caught)
+        if n_conv:
+            notes.append(f"differentiation: {n_conv} chunk(s) did not fully converge (derivative_max_iter)")
+        span = y_all.max(axis=0) - y_all.min(axis=0)
+        env = float(self.options["envelope"])
+        lower = (y_all.min(axis=0) - env * span - x_mean) / x_std
+        upper = (y_all.max(axis=0) + env * span - x_mean) / x_std
+        return _Prepared(
+            x=xs, u=us if len(train.input_names) else None, t=tt, x_dot=xd, state_mean=x_mean, state_std=x_std,
+            control_mean=u_mean, control_std=u_std, lower=lower, upper=upper, notes=notes,
+        )
+
+    def _fit_prepared(self, prep: _Prepared, train: Samples, params: Params) -> SINDyFit:
+        p = self._params(params)
+        model = ps.SINDy(
+            optimizer=ps.STLSQ(threshold=p["threshold"], alpha=p["alpha"]),
+            feature_library=ps.PolynomialLibrary(degree=p["degree"]),
+        )
+        names = list(train.target_names) + list(train.input_names)
+        notes = list(prep.notes)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            model.fit(prep.x, t=prep.t, x_dot=prep.x_dot, u=prep.u, feature_names=names)
+        notes += sorted({str(w.message) for w in caught})
+        coef = np.array(model.coefficients(), dtype=np.float64)
+        powers = np.asarray(model.feature_library.powers_, dtype=np.int64)
+        return SINDyFit(
+            model=model, coef=coef, powers=powers, state_mean=prep.state_mean, state_std=prep.state_std,
+            control_mean=prep.control_mean, control_std=prep.control_std, lower=prep.lower, upper=prep.upper,
+            time_scale=float(self.options["time_scale"]), params=p, state_names=tuple(train.target_names),
+            control_names=tuple(train.input_names), derivative=self.options["derivative"],
+            derivative_alpha=self.derivative_alpha, notes=notes,
+        )

@@ -1,0 +1,333 @@
+"""The ``moe`` method and the TV derivative it trains on.
+
+The recovery test uses a known two-regime linear system dz/dt = a_r z + b_r u, with the
+regime chosen by a scheduler signal v: (a, b) = (-1, 2) for v < 0 and (-3, 0.5) for
+v > 0. The trained mixture must recover both local systems and simulate a held-out
+segment open loop.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import pickle
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from derivative import TrendFiltered
+from scipy.integrate import solve_ivp
+
+from enginebench.datasets.dataset import Dataset
+from enginebench.datasets.samples import make_samples
+from enginebench.datasets.schema import Schema
+from enginebench.errors import DataError, MethodError
+from enginebench.methods.derivatives import tv_derivative, tv_differentiate, window_bounds
+from enginebench.methods.moe import MoE, frozen_stability, gate_weights, local_coefficients, simulate
+from enginebench.methods.moe_model import moe_loss, signed_softplus
+
+DT = 0.05
+REGIMES = {"low": (-1.0, 2.0), "high": (-3.0, 0.5)}  # v < 0, v > 0
+REL_TOL = 0.15  # stated tolerance on the recovered coefficients
+
+
+# -- data -------------------------------------------------------------------------------------
+def two_regime_samples(seed: int, n_seg: int, n: int, noise: float = 0.005, v_const: float | None = None):
+    """Simulation-mode samples of the two-regime system, integrated finely (RK4, 2 substeps)."""
+    rng = np.random.default_rng(seed)
+    f = rng.uniform(0.05, 0.5, (n_seg, 3))
+    ph = rng.uniform(0, 2 * np.pi, (n_seg, 3))
+    amp = rng.uniform(0.5, 1.0, (n_seg, 3))
+    period, phv = rng.uniform(8, 16, n_seg), rng.uniform(0, 2 * np.pi, n_seg)
+
+    def u(t):
+        return 1.0 + (amp * np.sin(2 * np.pi * f * np.asarray(t)[..., None, None] + ph)).sum(-1)
+
+    def v(t):
+        return np.full(n_seg, v_const) if v_const is not None else np.sin(2 * np.pi * t / period + phv)
+
+    def rhs(t, z):
+        low = v(t) < 0
+        return np.where(low, REGIMES["low"][0], REGIMES["high"][0]) * z + np.where(low, REGIMES["low"][1], REGIMES["high"][1]) * u(t)
+
+    sub, h = 2, DT / 2
+    Z = np.empty((n, n_seg))
+    z = rng.uniform(0.0, 2.0, n_seg)
+    Z[0] = z
+    for i in range(1, n):
+        for j in range(sub):
+            t = (i - 1) * DT + j * h
+            k1 = rhs(t, z)
+            k2 = rhs(t + h / 2, z + h / 2 * k1)
+            k3 = rhs(t + h / 2, z + h / 2 * k2)
+            k4 = rhs(t + h, z + h * k3)
+            z = z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        Z[i] = z
+    T = np.arange(n) * DT
+    Z = Z + noise * Z.std() * rng.standard_normal(Z.shape)
+    V = np.stack([v(t) for t in T])
+    frames = [
+        pd.DataFrame({"segment": f"r{seed}-{s}", "time": T, "u": u(T)[:, s], "v": V[:, s], "z": Z[:, s]})
+        for s in range(n_seg)
+    ]
+    ds = Dataset("two-regime", pd.concat(frames, ignore_index=True), Schema.from_roles({"u": "input", "v": "input", "z": "output"}), DT)
+    return make_samples(ds, ["z"], "simulation")
+
+
+@pytest.fixture(scope="module")
+def train():
+    return two_regime_samples(1, 4, 400)
+
+
+@pytest.fixture(scope="module")
+def test_data():
+    return two_regime_samples(2, 2, 400)
+
+
+@pytest.fixture(scope="module")
+def short_data(test_data):
+    """The first 120 rows of the held-out segments (for the slower step-by-step simulator)."""
+    cut = lambda s: replace(s, X=s.X[:120], rows=s.rows[:120], U=s.U[:120], t=s.t[:120], y=None)  # noqa: E731
+    return replace(test_data, segments=tuple(cut(s) for s in test_data.segments))
+
+
+@pytest.fixture(scope="module")
+def model(train):
+    method = MoE(scheduler=["v"], batch_size=2048, device="cpu")  # full batch: 1600 rows
+    return method, method.fit(train, {"n_experts": 3, "epochs": 300, "lr": 3e-2}, np.random.default_rng(0))
+
+
+def rmae(pred, data, train):
+    """Seed 003's RMAE_set: mean over segments of each segment's MAE, over mean |y| in training."""
+    return np.mean([np.mean(np.abs(p - s.y)) for p, s in zip(pred, data.segments)]) / np.mean(np.abs(train.y))
+
+
+# -- TV derivative ------------------------------------------------------------------------------
+def test_tv_derivative_of_noisy_sine_is_close_to_analytic():
+    rng = np.random.default_rng(3)
+    t = np.arange(600) * 0.01
+    y = np.sin(2 * t) + 0.01 * rng.standard_normal(t.size)
+    exact = 2 * np.cos(2 * t)
+    fd_rmse = np.sqrt(np.mean((np.gradient(y, t) - exact) ** 2))
+    tv_rmse = np.sqrt(np.mean((tv_derivative(y, t, 1e-5) - exact) ** 2))
+    tv1_rmse = np.sqrt(np.mean((tv_derivative(y, t, 1e-6, order=1) - exact) ** 2))
+    assert tv_rmse < 0.15  # amplitude 2
+    assert tv1_rmse < 0.08
+    assert tv_rmse < fd_rmse / 5  # the noise a finite difference amplifies is removed
+
+
+def test_tv_derivative_columns_windows_and_package_agree():
+    rng = np.random.default_rng(4)
+    t = np.arange(300) * 0.02
+    Y = np.c_[np.sin(t), np.exp(-0.3 * t)] + 0.005 * rng.standard_normal((300, 2))
+    D = tv_derivative(Y, t, 1e-5)
+    assert D.shape == (300, 2)
+    np.testing.assert_allclose(D[:, 1], tv_derivative(Y[:, 1], t, 1e-5))  # columns are independent
+    # one window: exactly the package's estimate; several windows: close to its full-length one
+    short = tv_derivative(Y[:100, 0], t[:100], 1e-5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref_short = TrendFiltered(order=0, alpha=1e-5, tol=1e-3, max_iter=10_000, precompute=True).d(Y[:100, 0], t[:100])
+        ref_full = TrendFiltered(order=0, alpha=1e-5, tol=1e-3, max_iter=10_000, precompute=True).d(Y[:, 0], t)
+    np.testing.assert_allclose(short, ref_short, rtol=1e-10, atol=1e-12)
+    assert np.sqrt(np.mean((D[10:-10, 0] - ref_full[10:-10]) ** 2)) < 0.05
+    smooth, _ = tv_differentiate(Y, t, 1e-5)
+    assert np.sqrt(np.mean((smooth - Y) ** 2)) < 0.02
+
+
+def test_window_bounds_tile_the_signal():
+    for n in (5, 128, 129, 300, 1001):
+        bounds = window_bounds(n, 128, 16)
+        kept = np.concatenate([np.arange(a, b) for _, _, a, b in bounds])
+        np.testing.assert_array_equal(kept, np.arange(n))
+        assert all(hi - lo == min(n, 128) and lo <= a and b <= hi for lo, hi, a, b in bounds)
+
+
+def test_tv_derivative_rejects_bad_time():
+    t = np.r_[0.0, 0.1, 0.2, 0.5, 0.6]
+    with pytest.raises(DataError, match=r"not uniformly sampled \(step 0.3.* at row 3"):
+        tv_derivative(np.arange(5.0), t, 1e-3)
+    with pytest.raises(DataError, match="must match in rows"):
+        tv_derivative(np.arange(4.0), np.arange(5.0), 1e-3)
+
+
+# -- building blocks ------------------------------------------------------------------------------
+def test_signed_softplus_is_seed_eq6():
+    x = torch.linspace(-30, 30, 61, dtype=torch.float64)
+    for k in (0.5, 1.0, 10.0):
+        neg = signed_softplus(x, torch.tensor(-1.0, dtype=torch.float64), k)
+        np.testing.assert_allclose(neg.numpy(), -np.log1p(np.exp(k * x.numpy())) / k, rtol=1e-8)  # torch: linear beyond kx = 20
+        assert (neg < 0).all()
+    free = signed_softplus(x, torch.tensor(0.0, dtype=torch.float64), 1.0)
+    np.testing.assert_array_equal(free.numpy(), x.numpy())
+
+
+def test_loss_is_seed_eq4():
+    rng = np.random.default_rng(5)
+    f, y = rng.normal(size=(7, 3, 2)), rng.normal(size=(7, 2))
+    a = rng.dirichlet(np.ones(3), size=7)
+    coll = ((y - np.einsum("nm,nmk->nk", a, f)) ** 2).sum(1)
+    err = ((y[:, None] - f) ** 2).sum(2)
+    T = lambda x: torch.as_tensor(x)  # noqa: E731
+    got2 = moe_loss(T(f), T(a), T(y), 0.7, 0.3, "alpha2").item()
+    got1 = moe_loss(T(f), T(a), T(y), 0.7, 0.3, "alpha").item()
+    assert got2 == pytest.approx(np.mean(0.7 * coll + 0.3 * (a**2 * err).sum(1)), rel=1e-12)
+    assert got1 == pytest.approx(np.mean(0.7 * coll + 0.3 * (a * err).sum(1)), rel=1e-12)
+
+
+# -- recovery and simulation -----------------------------------------------------------------------
+def test_recovers_both_local_linear_systems(model):
+    _, fitted = model
+    points = np.array([[-0.8], [-0.4], [0.4], [0.8]])
+    loc = local_coefficients(fitted, points)
+    a, b = loc["A"][:, 0, 0], loc["B"][:, 0, 0]  # B's columns: u, v
+    for j, regime in enumerate(["low", "low", "high", "high"]):
+        a_true, b_true = REGIMES[regime]
+        assert abs(a[j] - a_true) < REL_TOL * abs(a_true), (points[j], a[j])
+        assert abs(b[j] - b_true) < REL_TOL * abs(b_true), (points[j], b[j])
+    # the gate gives each regime its own expert
+    assert np.argmax(loc["gate"][0]) == np.argmax(loc["gate"][1]) != np.argmax(loc["gate"][2]) == np.argmax(loc["gate"][3])
+
+
+def test_open_loop_simulation_of_held_out_segments(model, train, test_data):
+    method, fitted = model
+    pred = method.predict(fitted, test_data.without_targets())
+    assert len(pred) == 2 and not pred.diverged.any()
+    assert all(p.shape == (400, 1) for p in pred)
+    for p, s in zip(pred, test_data.segments):
+        assert p[0, 0] == pytest.approx(s.y0[0], rel=1e-6)  # starts from the measured y0
+    assert rmae(pred, test_data, train) < 0.05
+    # the simulation never reads measured outputs after t0: replacing them changes nothing
+    scrambled = replace(test_data, segments=tuple(replace(s, y=s.y[::-1] * 7.0) for s in test_data.segments))
+    for p, q in zip(pred, method.predict(fitted, scrambled)):
+        np.testing.assert_array_equal(p, q)
+
+
+def test_affine_chunked_simulation_equals_stepwise(model, short_data):
+    _, fitted = model
+    data = short_data
+    a, ga, _ = simulate(fitted, data, record_gate=True)
+    b, gb, _ = simulate(fitted, data, record_gate=True, stepwise=True)
+    for x, y in zip(a, b):
+        np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5)
+    for x, y in zip(ga, gb):
+        np.testing.assert_allclose(x, y, atol=1e-6)
+
+
+def test_integrator_matches_scipy_for_a_frozen_scheduler(model):
+    """With v held constant the model is an LTI system: RK4 at the data's dt vs solve_ivp."""
+    _, fitted = model
+    data = two_regime_samples(7, 1, 200, noise=0.0, v_const=0.5)
+    seg = data.segments[0]
+    (sim,), _, _ = simulate(fitted, data.without_targets())
+    loc = local_coefficients(fitted, np.array([[0.5]]))
+    A, B, c = loc["A"][0], loc["B"][0], loc["c"][0]
+
+    def rhs(t, y):
+        u = np.array([np.interp(t, seg.t, seg.U[:, k]) for k in range(seg.U.shape[1])])
+        return A @ y + B @ u + c
+
+    ref = solve_ivp(rhs, (seg.t[0], seg.t[-1]), seg.y0, t_eval=seg.t, rtol=1e-10, atol=1e-12, max_step=DT)
+    np.testing.assert_allclose(sim[:, 0], ref.y[0], rtol=1e-4, atol=1e-4 * np.abs(ref.y).max())
+
+
+def test_describe_and_frozen_stability(model):
+    method, fitted = model
+    d = method.describe(fitted)
+    json.dumps(d)  # plain, storable artefacts
+    assert d["n_experts"] == 3 and d["hyperparameters"]["epochs"] == 300
+    assert d["schedulers"] == ["v"] and d["inputs"] == ["u", "v"]
+    assert d["signs"] == {"dz/dt <- z": "-"}
+    assert len(d["local_systems"]) == 1 + 3
+    verdict = d["frozen_stability"]
+    assert verdict["stable"] and verdict["state_coefficients_negative"]
+    assert verdict["max_state_coefficient"] < 0 and verdict["max_real_eigenvalue"] < 0
+
+
+def test_gate_weights_follow_the_scheduler(model, test_data):
+    _, fitted = model
+    gates = gate_weights(fitted, test_data.without_targets())
+    low = None
+    for g, s in zip(gates, test_data.segments):
+        assert g.shape == (400, 3)
+        np.testing.assert_allclose(g.sum(1), 1.0, atol=1e-5)
+        v = s.U[:, 1]
+        far = np.abs(v) > 0.2
+        dom = g.argmax(1)
+        low = low if low is not None else np.bincount(dom[far & (v < 0)], minlength=3).argmax()
+        assert np.mean(dom[far & (v < 0)] == low) > 0.95
+        assert np.mean(dom[far & (v > 0)] != low) > 0.95
+
+
+def test_unstable_model_is_flagged_diverged(model, test_data, short_data):
+    """A sign-free model given a large positive own-state coefficient must be stopped and flagged."""
+    method, fitted = model
+    bad = copy.deepcopy(fitted)
+    bad.sign = np.zeros_like(bad.sign)  # sign-free experts
+    bad.weights["sign"] = np.zeros_like(bad.weights["sign"])
+    bad.weights["b2"][:, 0] += 20.0  # coefficient (z <- z) of every expert
+    verdict = frozen_stability(bad)
+    assert not verdict["stable"] and not verdict["state_coefficients_negative"]
+    pred = method.predict(bad, test_data.without_targets())
+    assert pred.diverged.all()
+    span = fitted.y_max - fitted.y_min
+    for p in pred:
+        assert np.isfinite(p).all()
+        assert (p >= fitted.y_min - 10 * span).all() and (p <= fitted.y_max + 10 * span).all()
+        assert p[-1, 0] == p[-2, 0]  # held after it left the envelope
+    # the step-by-step path agrees on the flags and the held values
+    a, _, flags_a = simulate(bad, short_data)
+    b, _, flags_b = simulate(bad, short_data, stepwise=True)
+    assert flags_a.all() and flags_b.all()
+    for x, y in zip(a, b):
+        np.testing.assert_allclose(x, y, rtol=1e-4)
+
+
+def test_fitted_model_survives_pickle(model, test_data):
+    method, fitted = model
+    again = pickle.loads(pickle.dumps(fitted))
+    for p, q in zip(method.predict(fitted, test_data.without_targets()), method.predict(again, test_data.without_targets())):
+        np.testing.assert_array_equal(p, q)
+
+
+# -- determinism, quasi-LPV, errors -------------------------------------------------------------------
+def test_deterministic_under_a_seed_and_quasi_lpv_runs():
+    small = two_regime_samples(3, 2, 100)
+    method = MoE(scheduler=["v"], scheduler_state=True, batch_size=64, device="cpu")
+    params = {"n_experts": 2, "epochs": 2}
+    f1 = method.fit(small, params, np.random.default_rng(11))
+    f2 = method.fit(small, params, np.random.default_rng(11))
+    f3 = method.fit(small, params, np.random.default_rng(12))
+    for name in f1.weights:
+        np.testing.assert_array_equal(f1.weights[name], f2.weights[name])
+    assert not np.array_equal(f1.weights["w1"], f3.weights["w1"])
+    p1 = method.predict(f1, small.without_targets())
+    p2 = method.predict(f2, small.without_targets())
+    for a, b in zip(p1, p2):
+        np.testing.assert_array_equal(a, b)
+    gates = gate_weights(f1, small.without_targets())
+    assert [g.shape for g in gates] == [(100, 2), (100, 2)]
+    assert method.describe(f1)["schedulers"] == ["v", "z"]
+
+
+def test_bad_input_errors(train):
+    with pytest.raises(MethodError, match="unknown option"):
+        MoE(schedular=["v"])
+    with pytest.raises(MethodError, match="option integrator='midpoint'"):
+        MoE(integrator="midpoint")
+    with pytest.raises(MethodError, match=r"option scheduler names 'w', not among the run-time inputs \(u, v\)"):
+        MoE(scheduler=["w"]).fit(train, {"epochs": 1}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="option signs names 'q'"):
+        MoE(signs={"q": "-"}).fit(train, {"epochs": 1}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="hyperparameter n_experts=0 must be a positive integer"):
+        MoE().fit(train, {"n_experts": 0}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="unknown hyperparameter"):
+        MoE().fit(train, {"experts": 2}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="does not support mode 'static'"):
+        MoE().fit(replace(train, mode="static"), {}, np.random.default_rng(0))
+    subsample = train.take(np.arange(0, len(train), 2))
+    with pytest.raises(MethodError, match=r"training segment 'r1-0' is a row subsample \(200 of 400 rows\)"):
+        MoE().fit(subsample, {"epochs": 1}, np.random.default_rng(0))

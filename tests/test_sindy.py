@@ -1,0 +1,327 @@
+"""SINDy: coefficient recovery on known controlled systems, the batched simulator against
+pysindy's own ``simulate`` (scipy solve_ivp), divergence accounting, and determinism."""
+
+from __future__ import annotations
+
+import json
+import pickle
+from dataclasses import replace
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+import pysindy as ps
+import pytest
+from scipy.integrate import solve_ivp
+from sklearn.preprocessing import PolynomialFeatures
+
+from enginebench.datasets.dataset import Dataset
+from enginebench.datasets.samples import Samples, make_samples
+from enginebench.datasets.schema import Schema
+from enginebench.errors import MethodError
+from enginebench.methods.base import SegmentPredictions, grid_points
+from enginebench.methods.sindy import SINDy, differentiate, library_features, raw_coefficients, simulate_batch
+
+DT = 0.1
+
+
+def _samples(
+    f: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    *,
+    seed: int,
+    durations: tuple[float, ...] = (15.0, 15.0, 15.0),
+    u_offset: float = 0.0,
+    u_amp: float = 1.0,
+    x0_range: tuple[float, float] = (-1.0, 1.0),
+) -> Samples:
+    """Segments of dx/dt = f(x, u) with a smooth random input, integrated to 1e-10 by scipy."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for k, dur in enumerate(durations):
+        a, w, ph = rng.uniform(0.5, 1.5, 3), rng.uniform(0.3, 2.0, 3), rng.uniform(0, 2 * np.pi, 3)
+
+        def u(t, a=a, w=w, ph=ph):
+            return u_offset + u_amp * (a[:, None] * np.sin(w[:, None] * np.atleast_1d(t) + ph[:, None])).sum(axis=0)
+
+        t = np.arange(0.0, dur, DT)
+        sol = solve_ivp(lambda tt, x: f(x, u(tt)), (0.0, t[-1]), [rng.uniform(*x0_range)], t_eval=t,
+                        rtol=1e-10, atol=1e-10)
+        assert sol.success
+        frames.append(pd.DataFrame({"segment": f"s{k}", "time": t + 1000.0 * k, "u": u(t), "y": sol.y[0]}))
+    frame = pd.concat(frames, ignore_index=True)
+    ds = Dataset("toy", frame, Schema.from_roles({"u": "input", "y": "output"}, {"u": "1", "y": "K"}), DT)
+    return make_samples(ds, ["y"], mode="simulation")
+
+
+def _linear(x, u):
+    return -2.0 * x + 3.0 * u
+
+
+def _quadratic(x, u):
+    return -x - 0.5 * x**2 + u
+
+
+LINEAR = _samples(_linear, seed=1)
+QUADRATIC = _samples(_quadratic, seed=2, u_offset=1.2, u_amp=0.25)
+RNG = np.random.default_rng(0)
+
+
+def _raw_terms(fitted) -> dict[str, float]:
+    """Raw-unit coefficients (d y / dt in K/s) by monomial name."""
+    names = ps.PolynomialLibrary(degree=fitted.params["degree"]).fit(np.zeros((1, 2))).get_feature_names(["y", "u"])
+    return dict(zip(names, raw_coefficients(fitted)[0]))
+
+
+# ----------------------------------------------------------------------------- (1) recovery
+def test_recovers_linear_controlled_system():
+    """dx/dt = -2x + 3u from 4 segments, default (total-variation) derivatives, degree-2 library."""
+    m = SINDy()
+    fitted = m.fit(LINEAR, {"degree": 2, "threshold": 0.05, "alpha": 1e-4}, RNG)
+    raw = _raw_terms(fitted)
+    assert raw["y"] == pytest.approx(-2.0, rel=5e-3)
+    assert raw["u"] == pytest.approx(3.0, rel=5e-3)
+    # every quadratic term was thresholded away, exactly
+    assert raw["y^2"] == 0.0 and raw["y u"] == 0.0 and raw["u^2"] == 0.0
+    # the standardised intercept (mean dx/dt over std x, small) is thresholded; what is left is ~0
+    assert abs(raw["1"]) < 0.1
+    d = m.describe(fitted)
+    # in standardised coordinates the true model is a y~ + b u~ + c with c = mean(dx/dt) / std(x) ~ 0
+    assert d["term_count"] == 2
+    assert d["feature_names"][int(np.flatnonzero(fitted.coef[0])[0])] == "y"
+    assert d["degree"] == 2 and d["threshold"] == 0.05 and d["alpha"] == 1e-4
+    assert d["equations"][0].startswith("d(y)/dt = ")
+    assert " y " in d["equations"][0] + " " and " u" in d["equations"][0]
+    assert "y^2" not in d["equations"][0]
+
+
+def test_recovers_quadratic_controlled_system():
+    """dx/dt = -x - 0.5 x^2 + u (stable equilibria for u > 0), degree-3 library."""
+    m = SINDy()
+    fitted = m.fit(QUADRATIC, {"degree": 3, "threshold": 0.05, "alpha": 1e-4}, RNG)
+    raw = _raw_terms(fitted)
+    assert raw["y"] == pytest.approx(-1.0, abs=0.02)
+    assert raw["y^2"] == pytest.approx(-0.5, abs=0.01)
+    assert raw["u"] == pytest.approx(1.0, abs=0.01)
+    assert abs(raw["1"]) < 0.01
+    for cubic in ("y^3", "y^2 u", "y u^2", "u^3", "y u", "u^2"):
+        assert raw[cubic] == 0.0
+    # centring x = m + s x~ turns -x - x^2/2 + u into c0 + c1 x~ + c2 x~^2 + c3 u~: four terms
+    d = m.describe(fitted)
+    assert d["term_count"] == 4
+    assert sorted(np.array(d["feature_names"])[fitted.coef[0] != 0]) == ["1", "u", "y", "y^2"]
+    assert d["equations_raw"][0].count(" y") >= 2 and "y^3" not in d["equations_raw"][0]
+
+
+def test_kalman_derivative_also_recovers_and_time_scale_is_only_a_unit():
+    m = SINDy(derivative="kalman")
+    params = {"degree": 1, "threshold": 0.0, "alpha": 0.0}
+    fitted = m.fit(LINEAR, params, RNG)
+    raw = _raw_terms(fitted)
+    assert raw["y"] == pytest.approx(-2.0, rel=0.02) and raw["u"] == pytest.approx(3.0, rel=0.02)
+    # time in units of 2.5 s: standardised coefficients scale by 2.5, raw ones and trajectories do not
+    m2 = SINDy(derivative="kalman", time_scale=2.5)
+    fitted2 = m2.fit(LINEAR, params, RNG)
+    np.testing.assert_allclose(fitted2.coef, 2.5 * fitted.coef, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(list(_raw_terms(fitted2).values()), list(raw.values()), rtol=1e-9, atol=1e-12)
+    test = LINEAR.without_targets()
+    for a, b in zip(m.predict(fitted, test), m2.predict(fitted2, test)):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_chunked_differentiation_stitches_correctly():
+    """A long signal is differentiated in overlapping chunks; the stitched result has no seams."""
+    dt = 0.05
+    t = np.arange(1000) * dt
+    x = np.c_[np.sin(t), np.cos(0.5 * t)]
+    exact = np.c_[np.cos(t), -0.5 * np.sin(0.5 * t)]
+    d = differentiate(x, dt, kind="kalman", alpha=1e-2, chunk=128, margin=24)
+    assert d.shape == x.shape
+    assert np.max(np.abs(d[5:-5] - exact[5:-5])) < 1e-5
+    tv = differentiate(x[:300], dt, kind="trend_filtered", alpha=1e-3, chunk=128, margin=24)
+    assert np.max(np.abs(tv[10:-10] - exact[10:290])) < 0.01
+
+
+# ----------------------------------------------------------------------------- (2) simulator
+def test_library_matches_pysindy_transform():
+    """library_features(powers_) reproduces pysindy's PolynomialLibrary and model.predict."""
+    m = SINDy(derivative="kalman")
+    fitted = m.fit(QUADRATIC, {"degree": 3, "threshold": 0.0, "alpha": 1e-3}, RNG)
+    rng = np.random.default_rng(5)
+    x, u = rng.normal(size=(50, 1)), rng.normal(size=(50, 1))
+    ours = library_features(np.hstack([x, u]), fitted.powers)
+    theirs = np.asarray(fitted.model.feature_library.transform(np.hstack([x, u])))
+    np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ours @ fitted.coef.T, np.asarray(fitted.model.predict(x, u=u)), rtol=1e-10, atol=1e-12)
+    # the raw-unit expansion is the same function of the raw signals (d y/dt in K/s)
+    y_raw, u_raw = x * fitted.state_std + fitted.state_mean, u * fitted.control_std + fitted.control_mean
+    raw_rhs = library_features(np.hstack([y_raw, u_raw]), fitted.powers) @ raw_coefficients(fitted).T
+    np.testing.assert_allclose(raw_rhs, fitted.state_std * (ours @ fitted.coef.T), rtol=1e-8, atol=1e-10)
+
+
+def _reference_simulation(fitted, seg) -> np.ndarray:
+    """scipy solve_ivp (DOP853, rtol 1e-11) of the fitted model, one call per sample interval with
+    the input held; the right-hand side is written out from the term exponents (checked against
+    scikit-learn's PolynomialFeatures, whose term order pysindy's library follows)."""
+    powers = PolynomialFeatures(degree=fitted.params["degree"]).fit(np.zeros((1, 2))).powers_
+    assert np.array_equal(powers, fitted.powers)  # same term order as pysindy's library
+    z = [(seg.y0 - fitted.state_mean) / fitted.state_std]
+    zu = (seg.U - fitted.control_mean) / fitted.control_std
+    for i in range(len(seg.t) - 1):
+        rhs = lambda _t, x, v=zu[i]: fitted.coef @ np.prod(np.r_[x, v] ** powers, axis=1)
+        sol = solve_ivp(rhs, (seg.t[i], seg.t[i + 1]), z[-1], method="DOP853", rtol=1e-11, atol=1e-12)
+        z.append(sol.y[:, -1])
+    return np.array(z) * fitted.state_std + fitted.state_mean
+
+
+def test_batched_simulation_agrees_with_scipy_and_pysindy_simulate():
+    m = SINDy()
+    fitted = m.fit(QUADRATIC, {"degree": 2, "threshold": 0.05, "alpha": 1e-4}, RNG)
+    test = _samples(_quadratic, seed=7, durations=(12.0, 4.0, 8.0), u_offset=1.2, u_amp=0.25)
+    preds = m.predict(fitted, test.without_targets())
+    assert isinstance(preds, SegmentPredictions) and not preds.diverged.any()
+    assert [p.shape for p in preds] == [(len(s), 1) for s in test.segments]
+    seg = test.segments[0]
+    ref = _reference_simulation(fitted, seg)
+    np.testing.assert_allclose(preds[0], ref, rtol=0, atol=3e-5 * np.ptp(ref))  # RK4 at dt vs exact ZOH
+    # the model also tracks the true (continuous-input) system open loop
+    assert np.max(np.abs(preds[0] - seg.y)) < 0.03 * np.ptp(seg.y)
+
+    # pysindy's own simulate (scipy LSODA) on a stretch with the input held constant
+    n = 15
+    const = replace(seg, U=np.full((n, 1), 1.4), t=seg.t[:n], rows=np.arange(n), y=None)
+    ours = m.predict(fitted, replace(test, segments=(const,)))[0]
+    u_std = (1.4 - fitted.control_mean) / fitted.control_std
+    z0 = (seg.y0 - fitted.state_mean) / fitted.state_std
+    theirs = fitted.model.simulate(z0, const.t, u=lambda _t: u_std) * fitted.state_std + fitted.state_mean
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-5 * np.ptp(theirs))
+
+
+def test_batched_equals_one_segment_at_a_time():
+    """Unequal lengths share one vectorised loop; each result equals its own single run."""
+    rng = np.random.default_rng(3)
+    coef = np.array([[0.1, -1.0, 0.5, -0.2, 0.05, 0.0]])
+    powers = np.array([[0, 0], [1, 0], [0, 1], [2, 0], [1, 1], [0, 2]])
+    lengths = (40, 7, 1, 25)
+    x0 = rng.normal(size=(4, 1))
+    us = [rng.normal(size=(n, 1)) for n in lengths]
+    ts = [np.arange(n) * 0.1 + 3.0 * k for k, n in enumerate(lengths)]
+    lo, hi = np.array([-50.0]), np.array([50.0])
+    for integrator in ("rk4", "euler"):
+        batch, div = simulate_batch(coef, powers, x0, us, ts, lo, hi, integrator=integrator, substeps=2)
+        for k in range(4):
+            one, d1 = simulate_batch(coef, powers, x0[k:k + 1], us[k:k + 1], ts[k:k + 1], lo, hi,
+                                     integrator=integrator, substeps=2)
+            np.testing.assert_allclose(batch[k], one[0], rtol=1e-13, atol=1e-15)
+            assert div[k] == d1[0]
+        assert batch[2].shape == (1, 1) and batch[2][0, 0] == x0[2, 0]
+
+
+def test_rk4_converges_to_analytic_solution():
+    """dx/dt = -x + u with u held at 1: x(t) = 1 + (x0 - 1) e^{-t}; RK4 error is O(h^4)."""
+    coef, powers = np.array([[-1.0, 1.0]]), np.array([[1, 0], [0, 1]])
+    errs = []
+    for h in (0.2, 0.1):
+        t = np.arange(0, 5 + h / 2, h)
+        traj, _ = simulate_batch(coef, powers, np.array([[3.0]]), [np.ones((t.size, 1))], [t],
+                                 np.array([-1e9]), np.array([1e9]))
+        errs.append(np.max(np.abs(traj[0][:, 0] - (1 + 2 * np.exp(-t)))))
+    assert errs[0] < 1e-4 and 12 < errs[0] / errs[1] < 20
+
+
+# ----------------------------------------------------------------------------- (3) divergence
+def test_unstable_fit_diverges_and_is_counted():
+    """Fit on dx/dt = +0.5 x: long test segments leave the envelope, short ones do not."""
+    train = _samples(lambda x, u: 0.5 * x + 0.2 * u, seed=4, durations=(4.0, 4.0, 4.0))
+    m = SINDy(derivative="kalman")
+    fitted = m.fit(train, {"degree": 1, "threshold": 0.02, "alpha": 1e-4}, RNG)
+    assert m.describe(fitted)["term_count"] >= 1
+    durations = (40.0, 2.0, 40.0, 2.0, 40.0)
+    test = _samples(lambda x, u: 0.5 * x + 0.2 * u, seed=9, durations=durations, x0_range=(2.0, 3.0))
+    preds = m.predict(fitted, test.without_targets())
+    expected = np.array([d > 10 for d in durations])
+    np.testing.assert_array_equal(preds.diverged, expected)
+    assert int(preds.diverged.sum()) == 3
+    env = m.describe(fitted)["envelope"]
+    lo, hi = env["lower"][0], env["upper"][0]
+    y_train = train.y[:, 0]
+    assert hi == pytest.approx(y_train.max() + 10 * np.ptp(y_train))
+    for p, div in zip(preds, preds.diverged):
+        assert np.all(np.isfinite(p)) and np.all((p >= lo) & (p <= hi))
+        if div:
+            # held at the last in-envelope value: a flat tail, one RK4 step (growth e^{0.025}) from the edge
+            first = int(np.argmax(np.all(p == p[-1], axis=1)))
+            assert first < len(p) - 10 and np.all(p[first:] == p[-1])
+            assert p[-1, 0] > hi / np.exp(0.5 * DT * 1.2)
+    # the open-loop model ran on the unaffected short segments as usual
+    assert np.all(np.diff(preds[1][:, 0]) > 0)
+
+
+def test_non_finite_step_is_flagged_and_held():
+    """A model whose first step overflows to inf: flagged, held at y0, batch neighbours untouched."""
+    coef, powers = np.array([[1e300, -1.0]]), np.array([[3, 0], [1, 0]])
+    x0 = np.array([[10.0], [0.0]])  # 1e300 * 1000 overflows; 0 is an equilibrium
+    ts = [np.arange(6) * 0.1] * 2
+    traj, div = simulate_batch(coef, powers, x0, [np.zeros((6, 1))] * 2, ts,
+                               np.array([-np.inf]), np.array([np.inf]))
+    np.testing.assert_array_equal(div, [True, False])
+    np.testing.assert_array_equal(traj[0], np.full((6, 1), 10.0))
+    np.testing.assert_array_equal(traj[1], np.zeros((6, 1)))
+
+
+# ----------------------------------------------------------------------------- (4) determinism
+def test_deterministic_and_picklable():
+    m = SINDy(derivative="kalman")
+    params = {"degree": 2, "threshold": 0.05, "alpha": 1e-3}
+    a = m.fit(LINEAR, params, np.random.default_rng(1))
+    b = SINDy(derivative="kalman").fit(LINEAR, params, np.random.default_rng(99))
+    np.testing.assert_array_equal(a.coef, b.coef)
+    test = LINEAR.without_targets()
+    pa, pb = m.predict(a, test), m.predict(b, test)
+    for x, y in zip(pa, pb):
+        np.testing.assert_array_equal(x, y)
+    c = pickle.loads(pickle.dumps(a))
+    for x, y in zip(pa, m.predict(c, test)):
+        np.testing.assert_array_equal(x, y)
+    assert m.describe(a) == m.describe(c)
+    json.dumps(m.describe(a))  # describe artefacts are stored as JSON
+
+
+def test_predict_grid_shares_work_and_matches_fit_predict():
+    m = SINDy(derivative="kalman", degrees=(1, 2), n_thresholds=2, n_alphas=1)
+    space = m.search_space(LINEAR)
+    assert list(space) == ["degree", "threshold", "alpha"]
+    np.testing.assert_allclose(space["threshold"], [1e-2, 1e3])
+    assert space["alpha"][0] == pytest.approx(1e-4)
+    grid = grid_points(space)
+    test = replace(LINEAR, segments=LINEAR.segments[:2]).without_targets()
+    out = m.predict_grid(LINEAR, test, grid, RNG)
+    assert out.shape == (4, len(test), 1)
+    for k, params in enumerate(grid):
+        np.testing.assert_array_equal(out[k], np.concatenate(m.predict(m.fit(LINEAR, params, RNG), test)))
+    # threshold 1e3 removes every term: the simulation stays at y0
+    assert np.all(out[1][: len(test.segments[0])] == test.segments[0].y0)
+
+
+def test_default_grid_is_small_and_spans_seed_ranges():
+    space = SINDy().search_space(LINEAR)
+    assert [len(v) for v in space.values()] == [3, 4, 3]
+    assert space["threshold"][0] == pytest.approx(1e-2) and space["threshold"][-1] == pytest.approx(1e3)
+    assert space["alpha"][0] == pytest.approx(1e-4) and space["alpha"][-1] == pytest.approx(1e-1)
+
+
+# ----------------------------------------------------------------------------- errors
+def test_errors_name_the_problem():
+    m = SINDy(derivative="kalman")
+    with pytest.raises(MethodError, match="does not support mode 'static'"):
+        m.fit(replace(LINEAR, mode="static"), {}, RNG)
+    with pytest.raises(MethodError, match="unknown parameter.*lam"):
+        m.fit(LINEAR, {"lam": 1.0}, RNG)
+    with pytest.raises(MethodError, match="degree must be an integer from 1 to 5, got 0"):
+        m.fit(LINEAR, {"degree": 0}, RNG)
+    resampled = LINEAR.take(np.array([0, 2, 4, 6, 8, 10]))
+    with pytest.raises(MethodError, match="segment 's0' is not a contiguous run of rows"):
+        m.fit(resampled, {}, RNG)
+    with pytest.raises(MethodError, match="option derivative='tvx'"):
+        SINDy(derivative="tvx")
+    with pytest.raises(MethodError, match="unknown option"):
+        SINDy(bogus=1)
