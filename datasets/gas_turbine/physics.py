@@ -6,9 +6,10 @@ absolute temperatures obey
 
     T_out = T_in * (p_out / p_in) ** k,   k = eta_p * (gamma - 1) / gamma,
 
-with T_in = TIT, p_in = c * CDP (c < 1: combustor loss), p_out = AP + GTEP. The
-exponent k, the loss factor c and a thermocouple offset b (degC) are fitted on the
-training rows only, by nonlinear least squares (scipy). Units in the data: TIT and TAT
+with T_in = TIT, p_in = c * CDP (c = 0.97: a 3 % combustor pressure loss, fixed because
+c and an offset trade off against each other), p_out = AP + GTEP. The exponent k and a
+thermocouple offset b (degC) are fitted on the training rows only, by nonlinear least
+squares (scipy). Units in the data: TIT and TAT
 in degC, CDP in bar (the UCI file calls it mbar, but its values, 10-16, are bar), AP
 and GTEP in mbar.
 """
@@ -24,8 +25,9 @@ from enginebench.errors import DataError
 
 KELVIN = 273.15
 MBAR_PER_BAR = 1000.0
-INITIAL = {"k": 0.25, "c": 0.95, "b": 0.0}
-BOUNDS = {"k": (0.05, 0.45), "c": (0.6, 1.1), "b": (-100.0, 100.0)}
+COMBUSTOR_PRESSURE_RATIO = 0.97
+INITIAL = {"k": 0.25, "b": 0.0}
+BOUNDS = {"k": (0.05, 0.45), "b": (-100.0, 100.0)}
 
 
 class TATExpansionModel:
@@ -36,9 +38,9 @@ class TATExpansionModel:
     outputs = ("TAT",)
 
     @staticmethod
-    def _predict(k: float, c: float, b: float, s: Mapping[str, np.ndarray]) -> np.ndarray:
+    def _predict(k: float, b: float, s: Mapping[str, np.ndarray]) -> np.ndarray:
         t_in = np.asarray(s["TIT"], dtype=float) + KELVIN
-        p_in = c * np.asarray(s["CDP"], dtype=float) * MBAR_PER_BAR
+        p_in = COMBUSTOR_PRESSURE_RATIO * np.asarray(s["CDP"], dtype=float) * MBAR_PER_BAR
         p_out = np.asarray(s["AP"], dtype=float) + np.asarray(s["GTEP"], dtype=float)
         return t_in * (p_out / p_in) ** k - KELVIN + b
 
@@ -59,7 +61,7 @@ class TATExpansionModel:
             lambda v: self._predict(*v, stacked) - stacked["TAT"],
             x0=[INITIAL[n] for n in names],
             bounds=([BOUNDS[n][0] for n in names], [BOUNDS[n][1] for n in names]),
-            x_scale=[0.1, 0.1, 10.0],
+            x_scale=[0.1, 10.0],
         )
         params = dict(zip(names, map(float, fit.x)))
         params["rms_residual_degC"] = float(np.sqrt(np.mean(fit.fun ** 2)))
@@ -67,4 +69,4 @@ class TATExpansionModel:
 
     def simulate(self, params: Mapping[str, Any], segment: Mapping[str, np.ndarray], dt: float) -> dict[str, np.ndarray]:
         self._check(segment)
-        return {"TAT": self._predict(params["k"], params["c"], params["b"], segment)}
+        return {"TAT": self._predict(params["k"], params["b"], segment)}
