@@ -81,11 +81,9 @@ class Spectral:
             raise MethodError(f"kernel matrix must be square, got shape {Q.shape}")
         if Q.shape[0] == 0:
             raise MethodError("kernel matrix is empty: no training rows; give at least one training sample")
+        if not np.isfinite(Q).all():
+            raise MethodError("kernel matrix has nan/inf entries; check the features and gamma for nan/inf")
         s, V = scipy.linalg.eigh(Q, driver="evd", overwrite_a=overwrite, check_finite=False)
-        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(V))):
-            raise MethodError(
-                "kernel matrix has non-finite entries or eigenvalues; check the features for nan/inf"
-            )
         scale = float(np.max(np.abs(s)))
         if s[0] < -NEGATIVE_EIG_RTOL * scale:
             raise MethodError(
@@ -121,7 +119,8 @@ class Spectral:
         """Predictions K_eval @ V @ coeffs for eigenbasis ``coeffs`` (n, L, k): shape (L, m, k).
 
         ``K_eval`` (m x n) is the kernel between evaluation rows and training rows;
-        K_eval @ V is formed once and shared by every lambda.
+        K_eval @ V is formed once and shared by every lambda. ``L`` may be any flattened
+        grid (e.g. lambda x theta for MTL-KRLS), as long as the coefficients are per component.
         """
         coeffs = np.asarray(coeffs, dtype=np.float64)
         n, L, k = coeffs.shape

@@ -258,3 +258,8 @@ def test_constant_feature_is_harmless() -> None:
     const = _fit_predict(m, with_constant(TRAIN), with_constant(TEST), 0.5, 1e-2)
     assert np.isfinite(const).all()
     np.testing.assert_allclose(const, base, rtol=1e-12, atol=1e-12 * np.abs(TRAIN.y).max())
+
+
+def test_spectral_rejects_non_finite_matrix() -> None:
+    with pytest.raises(MethodError, match="kernel matrix has nan/inf entries"):
+        Spectral.from_kernel(np.array([[1.0, np.nan], [np.nan, 1.0]]))
