@@ -430,3 +430,17 @@ def test_validate_frame_returns_dataset_ready_frame():
     ds = Dataset("v", out, SCHEMA, 1.0)
     assert list(ds.frame.columns) == [SEGMENT, TIME, "x", "y"] and ds.frame["x"].dtype == np.float64
     np.testing.assert_allclose(ds.frame["x"], frame["x"].astype(float), rtol=1e-15)
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_malformed_case_at_the_command_line_is_one_line_and_exit_2(case, tmp_path, monkeypatch):
+    """`enginebench datasets show SPEC` prints exactly 'error: <message>' and exits with 2."""
+    from click.testing import CliRunner
+
+    from enginebench.cli.main import cli
+
+    monkeypatch.setenv("ENGINEBENCH_DATA", str(tmp_path))
+    folder = MALFORMED / case
+    result = CliRunner().invoke(cli, ["datasets", "show", str(folder / "spec.toml")])
+    assert result.exit_code == 2
+    assert result.output == f"error: {CASES[case][1].format(dir=folder)}\n"
