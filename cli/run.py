@@ -31,7 +31,8 @@ def run(experiment: str, repeats, methods, seed, train_size, workers, quiet, sto
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore
-    from enginebench.results.tables import summarize, to_rich
+    from enginebench.cli.table import paired_lines
+    from enginebench.results.tables import paired_tests, summarize, to_rich
 
     load_plugins(plugins)
     spec = load_spec(experiment)
@@ -53,9 +54,11 @@ def run(experiment: str, repeats, methods, seed, train_size, workers, quiet, sto
         result = run_experiment(spec, RunStore(store), workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
                                 progress=tick)
         progress.update(task, description=f"{spec.name}: done")
-    summary = summarize(result.run.metrics(), interval=spec.interval)
+    raw = result.run.metrics()
+    summary = summarize(raw, interval=spec.interval)
     out = Console()
     out.print(to_rich(summary, title=f"{spec.name} ({spec.dataset}, {spec.mode})"))
+    click.echo(paired_lines(paired_tests(raw, "mae"), "mae"), nl=False)
     if result.n_failed:
         out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench table {result.run.id}' counts them (n_failed).[/yellow]")
     out.print(f"run {result.run.id} stored in {result.run.path}")

@@ -13,9 +13,11 @@ from enginebench.cli.options import store_option
 @click.option("--format", "fmt", type=click.Choice(["term", "md", "latex", "csv", "html"]), default="term", show_default=True)
 @click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True, help="Comma-separated metric columns (wide formats).")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")
+@click.option("--paired", "paired_metric", default="mae", show_default=True,
+              help="Metric for the paired tests printed under term/md tables ('' to skip).")
 @click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
 @store_option
-def table(run_ref: str, fmt: str, metrics: str, interval, output, store) -> None:
+def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, store) -> None:
     """Print the comparison table of RUN (an id, a unique prefix, 'latest' or a run folder).
 
     csv is the long table: one row per dataset, target, mode, window, method, split and
@@ -27,14 +29,18 @@ def table(run_ref: str, fmt: str, metrics: str, interval, output, store) -> None
 
     run = RunStore(store).get(run_ref)
     interval = interval or run.config().get("interval", "t")
-    summary = tables.summarize(run.metrics(), interval=interval)
+    raw = run.metrics()
+    summary = tables.summarize(raw, interval=interval)
     cols = [m.strip() for m in metrics.split(",") if m.strip()]
     if fmt == "term" and output is None:
         Console().print(tables.to_rich(summary, cols, title=run.id))
+        if paired_metric:
+            click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric))
         return
     text = {
         "term": lambda: tables.to_markdown(summary, cols),
-        "md": lambda: tables.to_markdown(summary, cols),
+        "md": lambda: tables.to_markdown(summary, cols) + ("\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric)
+                                                           if paired_metric else ""),
         "latex": lambda: tables.to_latex(summary, cols),
         "csv": lambda: tables.to_csv(summary),
         "html": lambda: tables.to_html(summary, cols),
@@ -45,6 +51,17 @@ def table(run_ref: str, fmt: str, metrics: str, interval, output, store) -> None
         click.echo(f"wrote {output}", err=True)
     else:
         click.echo(text, nl=False)
+
+
+def paired_lines(tests, metric: str) -> str:
+    """Plain sentences for the paired tests of each method against its block's best."""
+    if tests.empty:
+        return ""
+    lines = [f"Paired tests on {metric} against the best method of each block (over repetitions):"]
+    for r in tests.itertuples():
+        lines.append(f"  {r.target}, {r.mode}, window {r.window:g} s, {r.split}: {r.method} - {r.versus} = {r.mean_difference:+.4g}"
+                     f"  (paired t p = {r.t_pvalue:.2g}, Wilcoxon p = {r.wilcoxon_pvalue:.2g}, n = {r.n_pairs})")
+    return "\n".join(lines) + "\n"
 
 
 @click.group()

@@ -18,9 +18,15 @@ from enginebench.methods.base import Method, Params, SearchSpace, log_grid, spli
 from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
 
 
+SOLVERS = ("auto", "exact", "falkon")
+
+
 @dataclass(frozen=True)
 class KRLSFitted:
-    """A fitted KRLS model: h(x) = sum_i alpha_i exp(-gamma |s(x) - s(x_i)|^2) + y_mean."""
+    """A fitted KRLS model: h(x) = sum_i alpha_i exp(-gamma |s(x) - s(x_i)|^2) + y_mean.
+
+    With the FALKON solver the x_i are the Nystroem centres, not all training rows.
+    """
 
     scaler: StandardScaler
     X_train: np.ndarray
@@ -31,10 +37,17 @@ class KRLSFitted:
     lam: float
     y_mean: np.ndarray
     """Added back to every prediction, (k,); zeros when the target is not centred."""
+    solver: str = "exact"
 
 
 class KRLS(Method):
-    """Gaussian-kernel regularised least squares, solved exactly by eigendecomposition."""
+    """Gaussian-kernel regularised least squares.
+
+    Exact by eigendecomposition up to ``exact_max_rows`` training rows (one
+    decomposition per gamma serves every lambda); above that, or with
+    ``solver = "falkon"``, Nystroem centres plus preconditioned conjugate gradient
+    (FALKON, in torch, CPU or CUDA) without ever forming the n x n kernel matrix.
+    """
 
     name = "krls"
     family = "data-driven"
@@ -48,6 +61,10 @@ class KRLS(Method):
             "center_target": True,
             "gamma_grid": (-4, 4, 41),
             "lambda_grid": (-4, 4, 41),
+            "solver": "auto",
+            "exact_max_rows": 20_000,
+            "centres": 2000,
+            "device": "auto",
         }
 
     def __init__(self, **options: Any) -> None:
@@ -64,6 +81,19 @@ class KRLS(Method):
                     f"method 'krls': option {key}={spec!r} must be (low exponent, high exponent, count) "
                     f"with a count >= 1, e.g. (-4, 4, 41) for 10^-4 ... 10^4"
                 )
+
+        if self.options["solver"] not in SOLVERS:
+            raise MethodError(f"method {self.name!r}: solver must be one of {', '.join(SOLVERS)}, got {self.options['solver']!r}")
+
+    def uses_falkon(self, n_rows: int) -> bool:
+        """Exact below ``exact_max_rows`` training rows (solver 'auto'), FALKON above or on request."""
+        solver = self.options["solver"]
+        return solver == "falkon" or (solver == "auto" and n_rows > int(self.options["exact_max_rows"]))
+
+    def _falkon(self, gamma: float, lam: float):
+        from enginebench.methods.falkon import FalkonSolver
+
+        return FalkonSolver(gamma=gamma, lam=lam, centres=int(self.options["centres"]), device=self.options["device"])
 
     def search_space(self, data: Samples) -> SearchSpace:
         g_lo, g_hi, g_n = self.options["gamma_grid"]
@@ -97,6 +127,10 @@ class KRLS(Method):
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> KRLSFitted:
         gamma, lam = _params(params)
         scaler, Xs, yc, y_mean = self._train_arrays(train)
+        if self.uses_falkon(len(Xs)):
+            solver = self._falkon(gamma, lam).fit(Xs, yc, rng)
+            return KRLSFitted(scaler=scaler, X_train=solver.centres_, alpha=solver.coef_, gamma=gamma, lam=lam, y_mean=y_mean,
+                              solver="falkon")
         spectral = Spectral.from_kernel(gaussian(sq_distances(Xs), gamma), overwrite=True)
         alpha = spectral.ridge_alpha(yc, np.array([lam]))[:, 0, :]
         return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha, gamma=gamma, lam=lam, y_mean=y_mean)
@@ -107,7 +141,8 @@ class KRLS(Method):
         return split_rows(K @ fitted.alpha + fitted.y_mean, data)
 
     def describe(self, fitted: KRLSFitted) -> dict[str, Any]:
-        return {"gamma": float(fitted.gamma), "lambda": float(fitted.lam), "n_train": int(fitted.X_train.shape[0])}
+        return {"gamma": float(fitted.gamma), "lambda": float(fitted.lam), "solver": fitted.solver,
+                "n_train" if fitted.solver == "exact" else "centres": int(fitted.X_train.shape[0])}
 
     # -- the whole grid at once -----------------------------------------------------------
     def predict_grid(
@@ -124,12 +159,20 @@ class KRLS(Method):
         out = np.empty((len(pairs), len(Xe), yc.shape[1]))
         if not pairs:
             return out
+        gammas = np.array([g for g, _ in pairs])
+        lambdas = np.array([lam for _, lam in pairs])
+        if self.uses_falkon(len(Xs)):
+            from enginebench.methods.falkon import falkon_path
+
+            for gamma in dict.fromkeys(gammas.tolist()):
+                idx = np.flatnonzero(gammas == gamma)
+                out[idx], _ = falkon_path(Xs, yc, Xe, gamma, lambdas[idx], int(self.options["centres"]), rng,
+                                          device=self.options["device"])
+            return out + y_mean
         D_train = sq_distances(Xs)
         D_eval = sq_distances(Xe, Xs)
         K_train = np.empty_like(D_train)
         K_eval = np.empty_like(D_eval)
-        gammas = np.array([g for g, _ in pairs])
-        lambdas = np.array([lam for _, lam in pairs])
         for gamma in dict.fromkeys(gammas.tolist()):  # distinct gammas, in order of first appearance
             idx = np.flatnonzero(gammas == gamma)
             spectral = Spectral.from_kernel(gaussian(D_train, gamma, out=K_train), overwrite=True)

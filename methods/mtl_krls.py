@@ -89,6 +89,9 @@ class MTLKRLS(KRLS):
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
+        if self.options["solver"] == "falkon":
+            raise MethodError("method 'mtl-krls' has only the exact spectral solver; use solver = 'exact' or 'auto' "
+                              "and a training subsample (train_size) it can decompose")
         if self.options["predict_with"] not in ("shared", "task"):
             raise MethodError(f"method 'mtl-krls': predict_with must be 'shared' or 'task', got {self.options['predict_with']!r}")
         low_high_num = self.options["theta_grid"]
@@ -98,6 +101,9 @@ class MTLKRLS(KRLS):
             ok = False
         if not ok:
             raise MethodError(f"method 'mtl-krls': option theta_grid={low_high_num!r} must be (low exponent, high exponent, count)")
+
+    def uses_falkon(self, n_rows: int) -> bool:
+        return False
 
     def search_space(self, data: Samples) -> SearchSpace:
         t_lo, t_hi, t_n = self.options["theta_grid"]

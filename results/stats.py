@@ -130,24 +130,17 @@ def _paired(a: object, b: object) -> tuple[np.ndarray, np.ndarray]:
 
 
 def paired_ttest(a: object, b: object) -> tuple[float, float]:
-    """Two-sided paired t-test of mean(a - b) == 0: `(statistic, pvalue)`.
+    """Two-sided paired t-test of mean(a - b) == 0 (scipy.stats.ttest_rel): `(statistic, pvalue)`.
 
-    t = mean(d) / (sd(d) / sqrt(n)) with n - 1 degrees of freedom. Identical
-    samples (all differences zero) give `(nan, 1.0)`: no evidence of a difference.
-    A constant non-zero difference gives `(+-inf, 0.0)`.
+    Identical samples (all differences zero) give `(nan, 1.0)`: no evidence of a
+    difference. A constant non-zero difference gives `(+-inf, 0.0)`.
     """
     x, y = _paired(a, b)
     d = x - y
-    n = d.size
-    mean = float(d.mean())
-    sd = float(d.std(ddof=1))
-    if sd == 0.0:
-        if mean == 0.0:
-            return float("nan"), 1.0
-        return float(np.copysign(np.inf, mean)), 0.0
-    stat = mean / (sd / np.sqrt(n))
-    pvalue = 2.0 * float(scipy.stats.t.sf(abs(stat), n - 1))
-    return float(stat), min(pvalue, 1.0)
+    if np.all(d == d[0]):
+        return (float("nan"), 1.0) if d[0] == 0.0 else (float(np.copysign(np.inf, d[0])), 0.0)
+    res = scipy.stats.ttest_rel(x, y)
+    return float(res.statistic), float(res.pvalue)
 
 
 def wilcoxon(a: object, b: object) -> tuple[float, float]:

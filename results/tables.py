@@ -193,3 +193,33 @@ def to_rich(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS, tit
     for r in _rows(cells, bold, lambda v: f"[bold]{v}[/bold]"):
         table.add_row(*r)
     return table
+
+
+def paired_tests(metrics: pd.DataFrame, metric: str = "mae") -> pd.DataFrame:
+    """Each method against the best (lowest mean) of its block, paired on repetitions.
+
+    Columns: target, mode, window, split, method, versus, mean_difference, t_pvalue,
+    wilcoxon_pvalue, n_pairs. A positive difference means ``method`` is worse than ``versus``.
+    """
+    from enginebench.results.stats import paired_ttest, wilcoxon
+
+    ok = metrics[(metrics["status"] == "ok") & (metrics["metric"] == metric)].dropna(subset=["value"])
+    rows = []
+    block_keys = ["target", "mode", "window", "split"]
+    for key, block in ok.groupby(block_keys, sort=False):
+        table = block.pivot_table(index="repetition", columns="method", values="value", aggfunc="first")
+        if table.shape[1] < 2:
+            continue
+        lower = METRICS[metric].lower_is_better if metric in METRICS else True
+        best = table.mean().idxmin() if lower else table.mean().idxmax()
+        for method in table.columns:
+            if method == best:
+                continue
+            pair = table[[method, best]].dropna()
+            if len(pair) < 2:
+                continue
+            _, p_t = paired_ttest(pair[method], pair[best])
+            _, p_w = wilcoxon(pair[method], pair[best])
+            rows.append((*key, method, best, float((pair[method] - pair[best]).mean()), p_t, p_w, len(pair)))
+    return pd.DataFrame(rows, columns=block_keys + ["method", "versus", "mean_difference", "t_pvalue",
+                                                    "wilcoxon_pvalue", "n_pairs"])

@@ -95,7 +95,7 @@ def _assert_close(ours: np.ndarray, ref: np.ndarray, y: np.ndarray, lam: float) 
 def test_single_target_and_describe() -> None:
     m = KRLS()
     fitted = m.fit(TRAIN_1, {"gamma": 0.3, "lambda": 0.1}, RNG)
-    assert m.describe(fitted) == {"gamma": 0.3, "lambda": 0.1, "n_train": len(TRAIN_1)}
+    assert m.describe(fitted) == {"gamma": 0.3, "lambda": 0.1, "solver": "exact", "n_train": len(TRAIN_1)}
     pred = np.concatenate(m.predict(fitted, TEST))
     assert pred.shape == (len(TEST), 1)
     # the first column of a two-target fit is the same model
@@ -263,3 +263,52 @@ def test_constant_feature_is_harmless() -> None:
 def test_spectral_rejects_non_finite_matrix() -> None:
     with pytest.raises(MethodError, match="kernel matrix has nan/inf entries"):
         Spectral.from_kernel(np.array([[1.0, np.nan], [np.nan, 1.0]]))
+
+
+def _smooth_problem(n: int, seed: int = 0):
+    import pandas as pd
+
+    from enginebench.datasets.dataset import Dataset
+    from enginebench.datasets.samples import make_samples
+    from enginebench.datasets.schema import Column, Schema
+
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-2, 2, (n, 4))
+    y = np.sin(X[:, 0]) + 0.5 * X[:, 1] ** 2 - X[:, 2] + rng.normal(0, 0.1, n)
+    frame = pd.DataFrame(X, columns=["a", "b", "c", "d"])
+    frame.insert(0, "time", np.arange(n, dtype=float))
+    frame.insert(0, "segment", "s")
+    frame["y"] = y
+    schema = Schema(tuple(Column(c, "input") for c in "abcd") + (Column("y", "output"),))
+    return make_samples(Dataset("smooth", frame, schema, 1.0), ["y"])
+
+
+def test_falkon_solver_is_within_two_percent_of_exact_where_exact_is_feasible():
+    samples = _smooth_problem(4000)
+    train, test = samples.take(np.arange(3000)), samples.take(np.arange(3000, 4000))
+    params = {"gamma": 0.2, "lambda": 0.1}
+    rng = np.random.default_rng(0)
+    maes = {}
+    for solver in ("exact", "falkon"):
+        m = KRLS(solver=solver, centres=500)
+        fitted = m.fit(train, params, rng)
+        maes[solver] = np.mean(np.abs(np.concatenate(m.predict(fitted, test.without_targets())) - test.y))
+        assert m.describe(fitted)["solver"] == solver
+    assert abs(maes["falkon"] - maes["exact"]) <= 0.02 * maes["exact"]
+
+
+def test_auto_solver_switches_above_the_row_threshold_and_grid_matches_fits():
+    samples = _smooth_problem(700)
+    train, test = samples.take(np.arange(500)), samples.take(np.arange(500, 700))
+    m = KRLS(solver="auto", exact_max_rows=400, centres=500)
+    assert m.uses_falkon(500) and not KRLS(exact_max_rows=600).uses_falkon(500)
+    grid = [{"gamma": 0.2, "lambda": 0.1}, {"gamma": 0.2, "lambda": 1.0}]
+    block = m.predict_grid(train, test.without_targets(), grid, np.random.default_rng(1))
+    exact = KRLS(solver="exact").predict_grid(train, test.without_targets(), grid, np.random.default_rng(1))
+    # with every row a centre FALKON solves the exact problem
+    np.testing.assert_allclose(block, exact, rtol=1e-4, atol=1e-4)
+
+
+def test_unknown_solver_is_refused():
+    with pytest.raises(MethodError, match="solver must be one of auto, exact, falkon, got 'magic'"):
+        KRLS(solver="magic")
