@@ -19,8 +19,12 @@ def datasets_list() -> None:
 
     click.echo(f"data home: {catalog.data_home()}  (set ENGINEBENCH_DATA to move it)")
     for b in catalog.BUILTINS.values():
-        state = "available" if catalog.cached_path(b.name).is_file() else ("not imported" if b.importer else "not generated")
-        click.echo(f"{b.name:<24} {b.kind:<10} {state:<14} {b.description}")
+        if b.generator is not None:
+            made = [size for size in b.sizes if catalog.cached_path(b.name, size).is_file()]
+            state = "generated: " + ",".join(made) if made else "not generated"
+        else:
+            state = "available" if catalog.cached_path(b.name).is_file() else "not imported"
+        click.echo(f"{b.name:<24} {b.kind:<10} {state:<18} {b.description}")
 
 
 @datasets.command("show")
@@ -32,7 +36,7 @@ def datasets_show(ref: str) -> None:
     ds = catalog.load(ref)
     s = ds.summary()
     click.echo(f"{ds.name}: {s['rows']} rows in {s['segments']} segment(s), dt = {s['dt_s']:g} s, {s['duration_h']:.1f} h")
-    for key in ("provenance", "licence"):
+    for key in ("provenance", "licence", "license"):
         if ds.meta.get(key):
             click.echo(f"{key}: {ds.meta[key]}")
     if ds.meta.get("synthetic"):
@@ -47,6 +51,25 @@ def datasets_show(ref: str) -> None:
             click.echo(f"{c.name:<20} {c.role:<9} {c.unit:<8} {col.nunique():>12} distinct")
         else:
             click.echo(f"{c.name:<20} {c.role:<9} {c.unit:<8} {col.min():>12.5g} {col.mean():>12.5g} {col.max():>12.5g}")
+
+
+@datasets.command("generate")
+@click.argument("name")
+@click.option("--size", default=None, help="small (for tests) or full [default: small].")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--force", is_flag=True, help="Regenerate even if cached.")
+def datasets_generate(name: str, size, seed: int, force: bool) -> None:
+    """Generate the synthetic built-in dataset NAME deterministically and cache it as Parquet."""
+    from rich.progress import Progress
+
+    from enginebench.datasets import catalog
+
+    with Progress(transient=True) as progress:
+        task = progress.add_task(f"generating {name}", total=1.0)
+        path = catalog.generate_builtin(name, size, seed, lambda f: progress.update(task, completed=f), force=force)
+    ds = catalog.load(str(path))
+    click.echo(f"{name} ({size or catalog.get_builtin(name).default_size}, seed {seed}): {len(ds)} rows in "
+               f"{len(ds.segment_ids)} segment(s) -> {path}")
 
 
 @datasets.command("import")

@@ -28,12 +28,26 @@ class Builtin:
     generator: Callable[..., Dataset] | None = None      # synthetic data: generated on demand
     targets: tuple[str, ...] = ()
     notes: dict[str, Any] = field(default_factory=dict)
+    sizes: dict[str, Any] = field(default_factory=dict)  # generated data: size name -> generator argument
+    default_size: str = "small"
 
 
 def _gas_turbine_import(directory: Path) -> Dataset:
     from enginebench.datasets.gas_turbine.importer import import_directory
 
     return import_directory(directory)
+
+
+def _turboshaft(size_arg: float, seed: int, progress: Callable[[float], None] | None) -> Dataset:
+    from enginebench.datasets.turboshaft import generate
+
+    return generate(hours=size_arg, seed=seed, progress=progress)
+
+
+def _marine(size_arg: str, seed: int, progress: Callable[[float], None] | None) -> Dataset:
+    from enginebench.datasets.marine_diesel import generate
+
+    return generate(size=size_arg, seed=seed, progress=progress)
 
 
 BUILTINS: dict[str, Builtin] = {
@@ -47,7 +61,50 @@ BUILTINS: dict[str, Builtin] = {
         targets=("NOX", "CO", "TAT"),
         notes={"import": "enginebench datasets import gas-turbine-emissions --from DIR (the folder with gt_2011.csv ... gt_2015.csv)"},
     ),
+    "turboshaft": Builtin(
+        name="turboshaft",
+        kind="synthetic",
+        description="SYNTHETIC twin-engine helicopter flights at 12 Hz (13 h full, 1 h small); targets WF, TRQ; "
+                    "NG, NP internal; split by flight",
+        licence="CC0-1.0 (generated)",
+        generator=_turboshaft,
+        targets=("WF", "TRQ"),
+        sizes={"small": 1.0, "full": 13.0},
+    ),
+    "marine-diesel": Builtin(
+        name="marine-diesel",
+        kind="synthetic",
+        description="SYNTHETIC medium-speed propulsion diesel of a patrol vessel at 1/3 Hz (small: days; full: 3347 h); "
+                    "targets: exhaust temperatures before/after the turbocharger",
+        licence="CC0-1.0 (generated)",
+        generator=_marine,
+        sizes={"small": "small", "full": "full"},
+    ),
 }
+
+
+def variant_name(size: str, seed: int = 0) -> str:
+    """Cache key of a generated dataset: its size, and the seed when not 0."""
+    return size if seed == 0 else f"{size}-seed{seed}"
+
+
+def generate_builtin(name: str, size: str | None = None, seed: int = 0,
+                     progress: Callable[[float], None] | None = None, force: bool = False) -> Path:
+    """Generate a synthetic built-in deterministically and cache it; returns the Parquet path."""
+    from enginebench.datasets.io import write_dataset
+
+    builtin = get_builtin(name)
+    if builtin.generator is None:
+        raise DataError(f"dataset {name!r} is real data; import it instead: {builtin.notes.get('import', '')}")
+    size = size or builtin.default_size
+    if size not in builtin.sizes:
+        raise DataError(f"dataset {name!r} has sizes {', '.join(builtin.sizes)}, not {size!r}")
+    path = cached_path(name, variant_name(size, seed))
+    if path.is_file() and not force:
+        return path
+    ds = builtin.generator(builtin.sizes[size], seed, progress)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_dataset(ds, path)
 
 
 def data_home() -> Path:
@@ -93,6 +150,9 @@ def load(ref: str | Path, *, variant: str = "", columns: list[str] | None = None
 
         return import_table(path)
     builtin = get_builtin(str(ref))
+    if builtin.generator is not None:
+        size, _, seed = (variant or builtin.default_size).partition("-seed")
+        return read_dataset(generate_builtin(builtin.name, size, int(seed or 0)), columns=columns)
     cached = cached_path(builtin.name, variant)
     if cached.is_file():
         return read_dataset(cached, columns=columns)

@@ -1,0 +1,19 @@
+"""The built-in ``marine-diesel`` data set (synthetic) and its physical model (seed 000).
+
+* ``generate(size, seed, progress)``: the synthetic data set (``generate.py``), driven by
+  a vessel profile (``profile.py``) through a rich mean-value "true engine"
+  (``engine.py``, ``thermal.py``, ``sensors.py``).
+* ``MarineDieselPM``: seed 000's mean-value physical model, modules A-F (``pm.py``).
+* ``calibrate_to_fat``: weighted least-squares calibration of the PM to factory
+  acceptance test points (``calibration.py``); ``load_fat`` reads the seed's FAT table
+  shipped as ``fat_seed000.csv``; ``simulator_fat`` measures FAT points on the true
+  engine (``fat.py``).
+"""
+
+from enginebench.datasets.marine_diesel.calibration import calibrate_to_fat, seed_fat_params
+from enginebench.datasets.marine_diesel.fat import load_fat, simulator_fat
+from enginebench.datasets.marine_diesel.generate import generate
+from enginebench.datasets.marine_diesel.pm import PM_NAME, MarineDieselPM
+
+__all__ = ["generate", "MarineDieselPM", "PM_NAME", "calibrate_to_fat", "seed_fat_params", "load_fat",
+           "simulator_fat"]
