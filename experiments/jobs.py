@@ -68,6 +68,16 @@ def subsample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(n, size=size, replace=False))
 
 
+def subsample_segments(sizes: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
+    """Row positions of whole segments drawn at random until ``size`` rows are reached (all if 0)."""
+    edges = np.r_[0, np.cumsum(sizes)]
+    if size <= 0 or size >= edges[-1]:
+        return np.arange(edges[-1])
+    order = rng.permutation(len(sizes))
+    keep = order[: int(np.searchsorted(np.cumsum(np.asarray(sizes)[order]), size)) + 1]
+    return np.concatenate([np.arange(edges[k], edges[k + 1]) for k in np.sort(keep)])
+
+
 def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Run one job; failures become a 'failed' record with the reason, never an exception."""
     spec = ctx.spec
@@ -80,10 +90,14 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     try:
         sub_rng = np.random.default_rng([spec.seed, job.repetition, stable_int(job.split)])
-        train = problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
+        if spec.mode == "simulation":  # a trajectory is only usable whole
+            sizes = np.array([len(s) for s in problem.train.segments])
+            train = problem.train.take(subsample_segments(sizes, spec.train_size, sub_rng))
+        else:
+            train = problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
         rng = np.random.default_rng([spec.seed, job.repetition, stable_int(job.method)])
         t0 = time.perf_counter()
-        params, search = select(method, train, spec.selection, rng)
+        params, search = select(method, train, spec.selection, rng, problem.parts.get("validation"))
         timings["select_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fitted = method.fit(train, params, rng)

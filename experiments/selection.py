@@ -37,8 +37,32 @@ def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.nd
     return np.where(np.isfinite(score), score, np.inf)
 
 
-def resample_pairs(n: int, selection: Selection, rng: np.random.Generator) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(fit rows, validation rows) pairs for the selection scheme."""
+def _segment_rows(sizes: np.ndarray) -> list[np.ndarray]:
+    edges = np.r_[0, np.cumsum(sizes)]
+    return [np.arange(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def resample_pairs(n: int, selection: Selection, rng: np.random.Generator,
+                   segment_sizes: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(fit rows, validation rows) pairs for the selection scheme.
+
+    With ``segment_sizes`` (simulation mode: a trajectory is only usable whole) the
+    resampling units are segments: a bootstrap draws whole segments with replacement
+    and validates on the segments left out; k-fold takes contiguous blocks of segments.
+    """
+    if segment_sizes is not None:
+        rows = _segment_rows(np.asarray(segment_sizes))
+        m = len(rows)
+        if selection.kind == "kfold":
+            return [(np.concatenate([rows[i] for i in fit]), np.concatenate([rows[i] for i in val]))
+                    for fit, val in blocked_folds(m, min(selection.folds, m))]
+        pairs = []
+        for _ in range(selection.resamples):
+            fit = np.sort(rng.integers(0, m, m))
+            oob = np.setdiff1d(np.arange(m), fit)
+            if oob.size:
+                pairs.append((np.concatenate([rows[i] for i in fit]), np.concatenate([rows[i] for i in oob])))
+        return pairs
     if selection.kind == "kfold":
         return blocked_folds(n, selection.folds)
     pairs = []
@@ -50,23 +74,33 @@ def resample_pairs(n: int, selection: Selection, rng: np.random.Generator) -> li
     return pairs
 
 
-def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The best grid point for ``method`` on ``train`` and a record of the search."""
+def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator,
+           validation: Samples | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The best grid point for ``method`` on ``train`` and a record of the search.
+
+    ``selection.kind == "validation"`` fits on all of ``train`` and scores on the split's
+    own validation part (the turboshaft seed's protocol).
+    """
     grid = grid_points(method.search_space(train))
     if not grid:
         return {}, {"grid_size": 0}
     if len(grid) == 1 or selection.kind == "none":
         return grid[0], {"grid_size": len(grid)}
     total = np.zeros(len(grid))
-    pairs = resample_pairs(len(train), selection, rng)
-    if not pairs:
+    if selection.kind == "validation":
+        if validation is None:
+            raise MethodError("selection kind 'validation' needs a split with a validation part")
+        parts = [(train, validation)]
+    else:
+        sizes = np.array([len(s) for s in train.segments]) if train.mode == "simulation" else None
+        parts = [(train.take(f), train.take(v)) for f, v in resample_pairs(len(train), selection, rng, sizes)]
+    if not parts:
         raise MethodError(f"model selection for {method.name!r}: no usable resample (training set of {len(train)} rows)")
-    for fit_rows, val_rows in pairs:
-        fit_part, val_part = train.take(fit_rows), train.take(val_rows)
+    for fit_part, val_part in parts:
         preds = method.predict_grid(fit_part, val_part.without_targets(), grid, rng)
         total += grid_scores(preds, val_part, selection.criterion)
-    mean = total / len(pairs)
+    mean = total / len(parts)
     if not np.isfinite(mean).any():
         raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
     best = int(np.argmin(mean))
-    return grid[best], {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(pairs)}
+    return grid[best], {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts)}

@@ -17,7 +17,7 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
     [split]                             # kind = published | holdout | rolling | groups
     kind = "published"
 
-    [selection]                         # kind = bootstrap | kfold | none
+    [selection]                         # kind = bootstrap | kfold | validation | none
     kind = "bootstrap"
     resamples = 5
     folds = 5
@@ -41,7 +41,7 @@ from enginebench.datasets.samples import MODES
 from enginebench.datasets.splits import SPLIT_KINDS
 from enginebench.errors import SpecError
 
-SELECTION_KINDS = ("bootstrap", "kfold", "none")
+SELECTION_KINDS = ("bootstrap", "kfold", "validation", "none")
 CRITERIA = ("mae", "rmae")
 INTERVALS = ("t", "bootstrap")
 
