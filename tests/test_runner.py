@@ -147,7 +147,7 @@ def test_builtin_specs_parse():
     ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "repetitions": 0},
      "test: 'repetitions' must be an integer >= 1, got 0"),
     ({"dataset": "x", "targets": ["y"], "methods": ["krls"], "selection": {"kind": "cv"}},
-     "test: selection kind 'cv' is not one of bootstrap, kfold, none"),
+     "test: selection kind 'cv' is not one of bootstrap, kfold, validation, none"),
 ])
 def test_spec_errors(raw, message):
     from enginebench.errors import SpecError
@@ -155,3 +155,16 @@ def test_spec_errors(raw, message):
     with pytest.raises(SpecError) as err:
         from_dict(raw, origin="test")
     assert str(err.value).startswith(message)
+
+
+def test_bootstrap_interval_option_in_summaries(toy_parquet, tmp_path):
+    from enginebench.results.stats import bootstrap_interval
+
+    run = run_experiment(toy_spec(toy_parquet, repetitions=5, interval="bootstrap"), RunStore(tmp_path), workers=1).run
+    metrics = run.metrics()
+    summary = summarize(metrics, interval="bootstrap", seed=3)
+    row = summary[(summary["method"] == "krls") & (summary["metric"] == "mae")].iloc[0]
+    assert row["interval"] == "bootstrap"
+    v = metrics[(metrics["method"] == "krls") & (metrics["metric"] == "mae")]["value"].to_numpy()
+    assert row["ci_low"] >= v.min() - 1e-12 and row["ci_high"] <= v.max() + 1e-12
+    assert "bootstrap percentile" in to_markdown(summary)
