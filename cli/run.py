@@ -12,7 +12,9 @@ from enginebench.cli.options import load_plugins, plugin_option, store_option
 
 
 @click.command()
-@click.argument("experiment")
+@click.argument("experiment", required=False)
+@click.option("--resume", "resume_ref", default=None, metavar="RUN",
+              help="Finish an interrupted run: only its missing jobs run, with its own config.")
 @click.option("--repeats", type=click.IntRange(min=1), default=None, help="Repetitions (overrides the experiment).")
 @click.option("--methods", default=None, help="Comma-separated methods to run (overrides the experiment).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Base seed (overrides the experiment).")
@@ -21,7 +23,7 @@ from enginebench.cli.options import load_plugins, plugin_option, store_option
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @store_option
 @plugin_option
-def run(experiment: str, repeats, methods, seed, train_size, workers, quiet, store, plugins) -> None:
+def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, quiet, store, plugins) -> None:
     """Run EXPERIMENT (a built-in name or a .toml file) and store it as a run.
 
     Every finished job is written to the run store at once, so an interrupted run keeps
@@ -34,13 +36,31 @@ def run(experiment: str, repeats, methods, seed, train_size, workers, quiet, sto
     from enginebench.cli.table import paired_lines
     from enginebench.results.tables import paired_tests, summarize, to_rich
 
+    import signal
+
+    from enginebench.errors import SpecError
+
+    # a terminated run (SIGTERM from a scheduler or `timeout`) is recorded as interrupted
+    signal.signal(signal.SIGTERM, lambda signum, frame: (_ for _ in ()).throw(SystemExit(128 + signum)))
     load_plugins(plugins)
-    spec = load_spec(experiment)
+    store_obj = RunStore(store)
+    resume = None
+    if resume_ref:
+        if experiment or repeats or methods or seed is not None or train_size is not None:
+            raise SpecError("--resume RUN takes the run's own config; give no EXPERIMENT or overrides with it")
+        resume = store_obj.get(resume_ref)
+        from enginebench.experiments.spec import from_dict
+
+        experiment_spec = from_dict(resume.config(), origin=f"run {resume.id}")
+    elif not experiment:
+        raise SpecError("give an EXPERIMENT (built-in name or .toml file) or --resume RUN")
+    spec = experiment_spec if resume else load_spec(experiment)
     overrides = {"repetitions": repeats, "seed": seed, "train_size": train_size}
     if methods:
         overrides["methods"] = [m.strip() for m in methods.split(",") if m.strip()]
         overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
-    spec = spec.with_overrides(**overrides)
+    if not resume:
+        spec = spec.with_overrides(**overrides)
     console = Console(stderr=True)
     progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                         TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=quiet, transient=False)
@@ -51,8 +71,8 @@ def run(experiment: str, repeats, methods, seed, train_size, workers, quiet, sto
             progress.update(task, completed=done, total=total,
                             description=f"{spec.name}: {job.method} r{job.repetition}")
 
-        result = run_experiment(spec, RunStore(store), workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
-                                progress=tick)
+        result = run_experiment(spec, store_obj, workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
+                                progress=tick, resume=resume)
         progress.update(task, description=f"{spec.name}: done")
     raw = result.run.metrics()
     summary = summarize(raw, interval=spec.interval)

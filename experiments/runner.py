@@ -15,11 +15,11 @@ from typing import Callable
 from enginebench.datasets import catalog
 from enginebench.datasets.samples import make_samples
 from enginebench.datasets.splits import make_splits
-from enginebench.errors import SpecError
+from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
 from enginebench.experiments.executors import default_workers, run_local
 from enginebench.experiments.jobs import Context, Job, Problem
-from enginebench.experiments.spec import ExperimentSpec
+from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
 from enginebench.results.store import Run, RunStore
 
@@ -86,18 +86,37 @@ def run_experiment(
     workers: int | None = None,
     plugins: tuple[str, ...] = (),
     progress: ProgressFn | None = None,
+    resume: Run | None = None,
 ) -> RunResult:
-    """Run ``spec`` end to end and return the stored run."""
+    """Run ``spec`` end to end and return the stored run.
+
+    With ``resume``, the run's own config is used, its finished jobs are kept as they
+    are, and only the missing jobs run (a job is finished once its file exists: files
+    are written atomically, so a half-written job never counts).
+    """
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise SpecError(f"--jobs must be >= 1, got {workers}")
+    if resume is not None:
+        spec = from_dict(resume.config(), origin=f"run {resume.id}")
+        if spec.config_hash() != resume.info().get("config_hash"):
+            raise StoreError(f"run {resume.id}: its config.toml no longer matches its config hash; it cannot be resumed safely")
     ctx = prepare(spec)
     jobs = plan(ctx)
-    run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers), len(jobs))
+    if resume is None:
+        run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers), len(jobs))
+        todo = jobs
+    else:
+        run = resume
+        for stale in run.jobs_dir.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
+            stale.unlink(missing_ok=True)
+        finished = run.finished_jobs()
+        todo = [j for j in jobs if j.key not in finished]
+        run.update_info(status="running", resumed=run.info().get("resumed", 0) + 1)
     n_failed = 0
-    done = 0
+    done = len(jobs) - len(todo)
     try:
-        for job, (rows, meta) in run_local(ctx, jobs, workers, plugins):
+        for job, (rows, meta) in run_local(ctx, todo, workers, plugins):
             run.write_job(job.key, rows, meta)
             n_failed += meta["status"] != "ok"
             done += 1
@@ -106,5 +125,6 @@ def run_experiment(
     except BaseException:
         run.update_info(status="interrupted", finished_jobs=done)
         raise
+    n_failed = sum(run.job_meta(j.key).get("status") != "ok" for j in jobs) if resume is not None else n_failed
     run.update_info(status="finished", finished_jobs=done, failed_jobs=n_failed)
     return RunResult(run=run, n_jobs=len(jobs), n_failed=n_failed)

@@ -168,3 +168,79 @@ def test_bootstrap_interval_option_in_summaries(toy_parquet, tmp_path):
     v = metrics[(metrics["method"] == "krls") & (metrics["metric"] == "mae")]["value"].to_numpy()
     assert row["ci_low"] >= v.min() - 1e-12 and row["ci_high"] <= v.max() + 1e-12
     assert "bootstrap percentile" in to_markdown(summary)
+
+
+def test_an_interrupted_run_resumes_to_the_same_metrics(toy_parquet, tmp_path):
+    spec = toy_spec(toy_parquet, repetitions=3)
+    store = RunStore(tmp_path / "runs")
+    reference = run_experiment(spec, store, workers=1).run.metrics()
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_two(done, total, job):
+        if done == 2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_experiment(spec, store, workers=1, progress=stop_after_two)
+    interrupted = store.runs()[-1]
+    assert interrupted.info()["status"] == "interrupted" and len(interrupted.finished_jobs()) == 2
+    before = {k: (interrupted.jobs_dir / f"{k}.parquet").stat().st_mtime_ns for k in interrupted.finished_jobs()}
+    seen = []
+    result = run_experiment(spec, store, workers=1, resume=interrupted, progress=lambda d, t, j: seen.append(j.key))
+    assert len(seen) == 4 and not set(seen) & set(before)  # only the missing jobs ran
+    assert {k: (interrupted.jobs_dir / f"{k}.parquet").stat().st_mtime_ns for k in before} == before
+    assert result.run.info()["status"] == "finished" and len(result.run.finished_jobs()) == 6
+    key = ["method", "repetition", "split", "metric"]
+    a = reference[~reference["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
+    b = result.run.metrics()
+    b = b[~b["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
+    assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_killed_process_resumes_from_the_command_line(toy_parquet, tmp_path):
+    """SIGKILL mid-run: finished jobs stay readable, --resume completes the rest."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'''
+name = "kill-me"
+dataset = "{toy_parquet}"
+targets = ["y"]
+repetitions = 8
+train_size = 150
+[selection]
+resamples = 2
+[methods.naive-mean]
+[methods.krls]
+gamma_grid = [-2, 0, 5]
+lambda_grid = [-3, -1, 5]
+''')
+    env = {**os.environ, "ENGINEBENCH_STORE": str(tmp_path / "runs")}
+    cmd = [sys.executable, "-c", "from enginebench.cli.main import main; main()"]
+    proc = subprocess.Popen([*cmd, "run", str(exp), "-j", "1", "-q"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    jobs_dir = None
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        found = list((tmp_path / "runs").glob("*/jobs/*.parquet"))
+        if len(found) >= 3:
+            jobs_dir = found[0].parent
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert jobs_dir is not None, "the run never wrote three jobs"
+    store = RunStore(tmp_path / "runs")
+    (run,) = store.runs()
+    n_before = len(run.finished_jobs())
+    assert 3 <= n_before < 16
+    run.metrics()  # every finished job file is readable
+    out = subprocess.run([*cmd, "run", "--resume", run.id, "-j", "1", "-q"], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert len(run.finished_jobs()) == 16 and run.info()["status"] == "finished"
+    assert not list(jobs_dir.glob(".*"))  # no temporary file left behind
