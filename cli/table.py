@@ -85,3 +85,49 @@ def runs_list(store) -> None:
         cfg = r.config()
         click.echo(f"{r.id}  {info.get('status', '?'):<11} {info.get('finished_jobs', len(r.finished_jobs()))}/{info.get('n_jobs', '?')} jobs"
                    f"  {cfg.get('dataset', '?')}  {','.join(cfg.get('methods', []))}")
+
+
+@runs.command("show")
+@click.argument("run_ref", metavar="RUN", default="latest")
+@store_option
+def runs_show(run_ref: str, store) -> None:
+    """Config, environment, timings and a per-method summary of RUN."""
+    import json
+
+    from enginebench.results.store import RunStore
+    from enginebench.results.tables import summarize
+
+    run = RunStore(store).get(run_ref)
+    info, cfg, env = run.info(), run.config(), run.environment()
+    click.echo(f"run {run.id}: {info.get('status')} ({info.get('finished_jobs', len(run.finished_jobs()))}/{info.get('n_jobs')} jobs, "
+               f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
+    click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "
+               f"mode {cfg.get('mode')}, windows {cfg.get('windows')}; {cfg.get('repetitions')} repetitions, seed {cfg.get('seed')}")
+    click.echo(f"environment: python {env.get('python')}, {env.get('cpu')} x{env.get('cpu_count')}, gpu {env.get('gpu')}, "
+               f"git {env.get('git_commit')}")
+    click.echo("packages: " + json.dumps(env.get("packages", {})))
+    metrics = run.metrics()
+    times = metrics[metrics["metric"].str.startswith("time_")].groupby(["method", "metric"])["value"].mean().unstack()
+    click.echo("\nmean seconds per job:\n" + times.round(3).to_string())
+    summary = summarize(metrics, interval=cfg.get("interval", "t"))
+    main = summary[summary["metric"].isin(["mae", "rmae"])][["target", "window", "split", "method", "metric", "mean", "ci_low", "ci_high", "n_repeats", "n_failed"]]
+    click.echo("\n" + main.to_string(index=False))
+
+
+@runs.command("rm")
+@click.argument("run_refs", metavar="RUN...", nargs=-1, required=True)
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+@store_option
+def runs_rm(run_refs, yes: bool, store) -> None:
+    """Delete runs from the store."""
+    import shutil
+
+    from enginebench.results.store import RunStore
+
+    rs = RunStore(store)
+    targets = [rs.get(ref) for ref in run_refs]
+    if not yes:
+        click.confirm(f"delete {len(targets)} run(s): {', '.join(r.id for r in targets)}?", abort=True)
+    for r in targets:
+        shutil.rmtree(r.path)
+        click.echo(f"deleted {r.id}")

@@ -120,3 +120,18 @@ def test_gas_turbine_import_and_show(runner, gas_turbine_dir):
     shown = runner.invoke(cli, ["datasets", "show", "gas-turbine-emissions"])
     assert "published split: train: 2011, 2012, 2013; test: 2014, 2015" in shown.output
     assert "licence: CC BY 4.0" in shown.output
+
+
+def test_runs_show_and_rm(runner, tmp_path, toy_parquet):
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'dataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 80\n'
+                   '[selection]\nkind = "none"\n[methods.naive-mean]\n')
+    assert runner.invoke(cli, ["run", str(exp), "-j", "1", "-q"]).exit_code == 0
+    shown = runner.invoke(cli, ["runs", "show", "latest"])
+    assert shown.exit_code == 0, shown.output
+    assert "finished (2/2 jobs, 0 failed)" in shown.output and "naive-mean" in shown.output
+    run_id = shown.output.split()[1].rstrip(":")
+    gone = runner.invoke(cli, ["runs", "rm", run_id, "--yes"])
+    assert gone.exit_code == 0 and gone.output.strip() == f"deleted {run_id}"
+    missing = runner.invoke(cli, ["runs", "show", run_id])
+    assert missing.exit_code == 2 and missing.output.startswith(f"error: no run {run_id!r}")
