@@ -22,6 +22,21 @@ def log_grid(low_exp: float, high_exp: float, num: int) -> np.ndarray:
     return np.logspace(low_exp, high_exp, num)
 
 
+def check_log_grid_option(method: str, key: str, spec: Any) -> tuple[float, float, int]:
+    """Validate a (low exponent, high exponent, count) grid option; MethodError naming it otherwise."""
+    try:
+        low, high, num = spec
+        ok = bool(np.isfinite([low, high]).all()) and float(num) == int(num) and int(num) >= 1
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise MethodError(
+            f"method {method!r}: option {key}={spec!r} must be (low exponent, high exponent, count) "
+            f"with a count >= 1, e.g. (-4, 4, 41) for 10^-4 ... 10^4"
+        )
+    return float(low), float(high), int(num)
+
+
 def grid_points(space: SearchSpace) -> list[dict[str, Any]]:
     """Every point of the product grid, in a fixed order (last name varies fastest)."""
     names = list(space)

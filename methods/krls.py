@@ -14,7 +14,7 @@ from sklearn.preprocessing import StandardScaler
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
+from enginebench.methods.base import Method, Params, SearchSpace, check_log_grid_option, log_grid, split_rows
 from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
 
 
@@ -53,6 +53,7 @@ class KRLS(Method):
     family = "data-driven"
     modes = frozenset({"static", "window"})
     summary = "Gaussian-kernel regularised least squares (exact, one eigendecomposition per gamma)"
+    grid_options: tuple[str, ...] = ("gamma_grid", "lambda_grid")
 
     @classmethod
     def default_options(cls) -> dict[str, Any]:
@@ -69,19 +70,8 @@ class KRLS(Method):
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
-        for key in ("gamma_grid", "lambda_grid"):
-            spec = self.options[key]
-            try:
-                low, high, num = spec
-                ok = bool(np.isfinite([low, high]).all()) and float(num) == int(num) and int(num) >= 1
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise MethodError(
-                    f"method 'krls': option {key}={spec!r} must be (low exponent, high exponent, count) "
-                    f"with a count >= 1, e.g. (-4, 4, 41) for 10^-4 ... 10^4"
-                )
-
+        for key in self.grid_options:
+            check_log_grid_option(self.name, key, self.options[key])
         if self.options["solver"] not in SOLVERS:
             raise MethodError(f"method {self.name!r}: solver must be one of {', '.join(SOLVERS)}, got {self.options['solver']!r}")
 

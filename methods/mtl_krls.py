@@ -81,6 +81,7 @@ class MTLKRLS(KRLS):
     family = "hybrid"
     modes = frozenset({"static", "window"})
     summary = "hybrid multi-task KRLS: measurements and the physical model as two tasks"
+    grid_options = ("gamma_grid", "lambda_grid", "theta_grid")
 
     @classmethod
     def default_options(cls) -> dict[str, Any]:
@@ -94,13 +95,6 @@ class MTLKRLS(KRLS):
                               "and a training subsample (train_size) it can decompose")
         if self.options["predict_with"] not in ("shared", "task"):
             raise MethodError(f"method 'mtl-krls': predict_with must be 'shared' or 'task', got {self.options['predict_with']!r}")
-        low_high_num = self.options["theta_grid"]
-        try:
-            ok = len(low_high_num) == 3 and int(low_high_num[2]) >= 1
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise MethodError(f"method 'mtl-krls': option theta_grid={low_high_num!r} must be (low exponent, high exponent, count)")
 
     def uses_falkon(self, n_rows: int) -> bool:
         return False
