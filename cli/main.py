@@ -36,7 +36,7 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from enginebench.cli import datasets, methods, rank, run, table
+    from enginebench.cli import compare, datasets, methods, rank, run, table
 
     cli.add_command(run.run)
     cli.add_command(datasets.datasets)
@@ -44,6 +44,9 @@ def _register() -> None:
     cli.add_command(table.table)
     cli.add_command(table.runs)
     cli.add_command(rank.rank)
+    cli.add_command(compare.compare)
+    cli.add_command(compare.guard)
+    cli.add_command(compare.publish)
 
 
 _register()

@@ -55,6 +55,7 @@ class Context:
     dataset: str
     problems: dict[tuple[str, float, str], Problem]
     methods: dict[str, Method]
+    dataset_hash: str = ""
 
 
 def stable_int(text: str) -> int:

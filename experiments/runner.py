@@ -55,7 +55,7 @@ def prepare(spec: ExperimentSpec) -> Context:
         parts = {name: make_samples(part, [target], spec.mode, window, physical_model=pm)
                  for name, part in split.parts().items()}
         problems[(target, window, split.name)] = Problem(train=train, parts=parts)
-    return Context(spec=spec, dataset=ds.name, problems=problems, methods=methods)
+    return Context(spec=spec, dataset=ds.name, problems=problems, methods=methods, dataset_hash=ds.content_hash())
 
 
 def plan(ctx: Context) -> list[Job]:
@@ -105,6 +105,7 @@ def run_experiment(
     jobs = plan(ctx)
     if resume is None:
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers), len(jobs))
+        run.update_info(dataset_hash=ctx.dataset_hash)
         todo = jobs
     else:
         run = resume

@@ -26,7 +26,7 @@ SKILL_OF = ("mae", "rmae")
 FORMATS = ("term", "md", "latex", "csv", "html")
 
 
-def _with_skill(ok: pd.DataFrame) -> pd.DataFrame:
+def with_skill(ok: pd.DataFrame) -> pd.DataFrame:
     """Add skill_<m> = 1 - m / m_baseline rows, paired on repetition."""
     base = ok[(ok["method"] == BASELINE) & ok["metric"].isin(SKILL_OF)]
     if base.empty:
@@ -46,7 +46,7 @@ def summarize(metrics: pd.DataFrame, interval: str = "t", level: float = 0.95, s
               .drop_duplicates(KEYS[:-1] + ["repetition"])
               .groupby(KEYS[:-1]).size().rename("n_failed"))
     ok = metrics[(metrics["status"] == "ok") & (metrics["split"] != "-") & ~metrics["metric"].isin(["n", "n_segments"])]
-    ok = _with_skill(ok.dropna(subset=["value"]))
+    ok = with_skill(ok.dropna(subset=["value"]))
     rng = np.random.default_rng(seed)
     rows = []
     for key, group in ok.groupby(KEYS + ["metric"], sort=False):

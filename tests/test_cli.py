@@ -16,7 +16,7 @@ def runner(tmp_path, monkeypatch):
     return CliRunner()
 
 
-@pytest.mark.parametrize("verb", [[], ["run"], ["datasets"], ["datasets", "import"], ["methods"], ["table"], ["runs"]])
+@pytest.mark.parametrize("verb", [[], ["run"], ["datasets"], ["datasets", "import"], ["methods"], ["table"], ["runs"], ["compare"], ["guard"], ["publish"], ["rank"]])
 def test_help_works_for_every_verb(runner, verb):
     result = runner.invoke(cli, [*verb, "--help"])
     assert result.exit_code == 0, result.output

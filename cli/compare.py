@@ -1,0 +1,100 @@
+"""``enginebench compare``, ``guard`` and ``publish``: runs against runs and against published baselines."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from enginebench.cli.options import store_option
+
+
+def _metric_list(text: str | None) -> list[str] | None:
+    if not text or text.strip() == "all":
+        return None
+    return [m.strip() for m in text.split(",") if m.strip()]
+
+
+@click.command()
+@click.argument("run_a", metavar="RUN_A")
+@click.argument("run_b", metavar="RUN_B", default="latest")
+@click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True,
+              help="Comma-separated metrics to compare, or 'all'.")
+@click.option("--format", "fmt", type=click.Choice(["term", "csv"]), default="term", show_default=True,
+              help="term: statements and a table; csv: one row per compared metric with every column.")
+@click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: RUN_A's].")
+@click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
+@store_option
+def compare(run_a: str, run_b: str, metrics: str, fmt: str, interval, output, store) -> None:
+    """Compare RUN_B with RUN_A (the reference) per method and metric.
+
+    For each (target, mode, window, split, method, metric) in both runs: both means with
+    their intervals, the difference B - A with a 95% interval, a t-test and a rank test
+    (paired t and Wilcoxon when the repetitions pair up, i.e. both runs have the same
+    dataset, seed, training size, split, roles and mode; otherwise Welch t and
+    Mann-Whitney U), and a plain statement of what moved outside RUN_A's interval.
+    """
+    from enginebench.results.compare import comparison_table, compare_runs, statements
+    from enginebench.results.store import RunStore
+
+    rs = RunStore(store)
+    cmp = compare_runs(rs.get(run_a), rs.get(run_b), interval=interval, metric_names=_metric_list(metrics))
+    if fmt == "csv":
+        text = cmp.table.to_csv(index=False)
+    else:
+        text = comparison_table(cmp) + "\n" + "\n".join(statements(cmp)) + "\n"
+    if output:
+        with open(output, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        click.echo(f"wrote {output}", err=True)
+    else:
+        click.echo(text, nl=False)
+
+
+@click.command()
+@click.argument("run_ref", metavar="RUN", default="latest")
+@click.option("--baseline", "-b", required=True, metavar="FILE",
+              help="Baseline JSON written by 'enginebench publish', or the name of one in results/published/.")
+@click.option("--tolerance", "-t", default="0", show_default=True,
+              help="Slack beyond the published interval: absolute (0.05, metric units) or relative (5%, of the published mean).")
+@click.option("--strict", is_flag=True, help="Also fail when the run's experiment, config or dataset differs from the baseline's, or the run is unfinished.")
+@click.option("--all", "all_rows", is_flag=True, help="Print every published value, not only the failing ones.")
+@store_option
+def guard(run_ref: str, baseline: str, tolerance: str, strict: bool, all_rows: bool, store) -> None:
+    """Check RUN against a published baseline: exit 0 if nothing regressed, 1 otherwise.
+
+    A lower-is-better metric regresses when the run's mean exceeds the published upper
+    interval bound plus the tolerance (mirrored for higher-is-better metrics); a published
+    value the run lacks is 'missing' and fails; values the run has beyond the baseline
+    are ignored. On failure a table names each metric and method with the published
+    value, the run's value, the allowed limit and the excess. A method with more failed
+    repetitions than published fails too. Bad input exits 2.
+    """
+    from enginebench.results.guard import guard_run, load_baseline, parse_tolerance, report
+    from enginebench.results.store import RunStore
+
+    tol = parse_tolerance(tolerance)
+    doc = load_baseline(baseline)
+    run = RunStore(store).get(run_ref)
+    result = guard_run(run, doc, tol, strict=strict)
+    click.echo(report(result, run.id, doc["path"], all_rows=all_rows), nl=False)
+    sys.exit(0 if result.passed else 1)
+
+
+@click.command()
+@click.argument("run_ref", metavar="RUN", default="latest")
+@click.option("--output", "-o", required=True, type=click.Path(dir_okay=False), help="Baseline JSON file to write.")
+@click.option("--metrics", default="all", show_default=True, help="Comma-separated metrics to publish, or 'all'.")
+@click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")
+@store_option
+def publish(run_ref: str, output: str, metrics: str, interval, store) -> None:
+    """Write RUN's summary (mean and interval per metric and method) as a baseline for 'guard'."""
+    from enginebench.results.guard import make_baseline, write_baseline
+    from enginebench.results.store import RunStore
+
+    run = RunStore(store).get(run_ref)
+    doc = make_baseline(run, interval=interval, metric_names=_metric_list(metrics))
+    path = write_baseline(doc, output)
+    methods = sorted({e["method"] for e in doc["entries"]})
+    click.echo(f"wrote {path}: {len(doc['entries'])} published values of experiment {doc['experiment']} "
+               f"(run {run.id}; methods {', '.join(methods)})")

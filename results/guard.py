@@ -1,0 +1,389 @@
+"""Published baselines and the guard that checks a run against one (DESIGN sec. 7).
+
+A baseline is a JSON file (``enginebench publish RUN -o FILE`` writes it; the project
+keeps those of its built-in experiments in ``results/published/``)::
+
+    {
+      "format": "enginebench-baseline",      fixed marker
+      "version": 1,                          format version
+      "experiment": "gas-turbine-nox-quick", the experiment's name
+      "config_hash": "<sha256>",             ExperimentSpec.config_hash() of the run
+      "dataset": "gas-turbine-emissions",    the experiment's dataset (name or file)
+      "dataset_variant": "",
+      "dataset_hash": "<sha256>" | null,     content hash of the dataset, if available
+      "interval": "t",                       t (Student-t) | bootstrap (percentile)
+      "level": 0.95,                         confidence level of the intervals
+      "source": {"run": ..., "created": ..., "git_commit": ..., "enginebench": ...},
+      "entries": [                           one per (target, mode, window, method, split, metric)
+        {"target": "NOX", "mode": "static", "window": 0.0, "method": "krls", "split": "test",
+         "metric": "mae", "mean": 2.51, "ci_low": 2.47, "ci_high": 2.55, "n_repeats": 30,
+         "n_failed": 0, "lower_is_better": true},
+        ...
+      ]
+    }
+
+``ci_low``/``ci_high`` are null where no interval exists (one repetition); ``n_failed``
+(failed repetitions of that method) is optional and defaults to 0. The dataset hash is
+taken from the run when it records one (``dataset_hash`` in run.json), else from the
+Parquet footer of the dataset file the run's config names (the cached built-in in the
+data home, or the ``.parquet`` file), else null.
+
+Guard rule, per published entry: the bound is ``ci_high`` for a lower-is-better metric
+(``ci_low`` for higher-is-better; the published mean where there is no interval); the
+allowed limit is the bound plus the tolerance (minus, for higher-is-better). The
+tolerance is absolute (``0.05``: metric units) or relative (``5%``: of the published
+mean's magnitude). An entry is ``regressed`` when the run's mean is beyond the limit,
+``missing`` when the run has no value for it, ``more failures`` when the run has more
+failed repetitions than published; otherwise ``ok``. Values of the run that the
+baseline does not list are ignored. A different experiment, config hash or dataset
+hash, or an unfinished run, gives a warning (a failure with ``strict``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from enginebench.errors import DataError
+from enginebench.results.compare import JOIN, lower_is_better, num, text_table
+from enginebench.results.tables import summarize
+
+__all__ = [
+    "BaselineError",
+    "FORMAT",
+    "GuardResult",
+    "Tolerance",
+    "VERSION",
+    "baseline_from_summary",
+    "check",
+    "dataset_hash",
+    "guard_run",
+    "load_baseline",
+    "make_baseline",
+    "parse_tolerance",
+    "published_dir",
+    "report",
+    "resolve_baseline",
+    "write_baseline",
+]
+
+FORMAT = "enginebench-baseline"
+VERSION = 1
+_STR_KEYS = ("target", "mode", "method", "split", "metric")
+
+
+class BaselineError(DataError):
+    """A baseline file that is missing or malformed."""
+
+
+def published_dir() -> Path:
+    """The folder of the baselines that ship with the package (results/published)."""
+    return Path(__file__).resolve().parent / "published"
+
+
+# -- writing ------------------------------------------------------------------------
+
+def _finite_or_none(x: Any) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def baseline_from_summary(summary: pd.DataFrame, *, experiment: str, config_hash: str, dataset: str,
+                          dataset_variant: str = "", dataset_hash: str | None = None, interval: str = "t",
+                          level: float = 0.95, source: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A baseline document from a ``tables.summarize`` frame (one entry per summary row)."""
+    rows = summary.sort_values(["target", "mode", "window", "split", "method", "metric"], kind="stable")
+    entries = [{
+        "target": str(r.target), "mode": str(r.mode), "window": float(r.window), "method": str(r.method),
+        "split": str(r.split), "metric": str(r.metric), "mean": float(r.mean),
+        "ci_low": _finite_or_none(r.ci_low), "ci_high": _finite_or_none(r.ci_high),
+        "n_repeats": int(r.n_repeats), "n_failed": int(r.n_failed), "lower_is_better": lower_is_better(str(r.metric)),
+    } for r in rows.itertuples()]
+    return {"format": FORMAT, "version": VERSION, "experiment": experiment, "config_hash": config_hash,
+            "dataset": dataset, "dataset_variant": dataset_variant, "dataset_hash": dataset_hash,
+            "interval": interval, "level": level, "source": source or {}, "entries": entries}
+
+
+def dataset_hash(run) -> str | None:
+    """The content hash of the run's dataset: recorded by the run, else from the dataset file's footer."""
+    recorded = run.info().get("dataset_hash")
+    if recorded:
+        return str(recorded)
+    from enginebench.datasets import catalog
+    from enginebench.datasets.io import read_metadata
+
+    cfg = run.config()
+    ref, variant = str(cfg.get("dataset", "")), str(cfg.get("dataset_variant", "") or "")
+    try:
+        if ref.endswith(".parquet"):
+            path = Path(ref)
+        else:
+            builtin = catalog.get_builtin(ref)
+            path = catalog.cached_path(builtin.name, variant or (builtin.default_size if builtin.generator else ""))
+        return str(read_metadata(path).get("content_hash")) if path.is_file() else None
+    except DataError:  # a .toml import spec, or an unknown name: no stored hash to read
+        return None
+
+
+def make_baseline(run, *, interval: str | None = None, metric_names: Sequence[str] | None = None) -> dict[str, Any]:
+    """The baseline of a stored run (``results.store.Run``), optionally restricted to some metrics."""
+    from enginebench import __version__
+
+    cfg, info, env = run.config(), run.info(), run.environment()
+    interval = interval or cfg.get("interval", "t")
+    summary = summarize(run.metrics(), interval=interval)
+    if metric_names:
+        unknown = sorted(set(metric_names) - set(summary["metric"]))
+        if unknown:
+            raise DataError(f"run {run.id} has no metric(s) {', '.join(unknown)}; it has {', '.join(sorted(set(summary['metric'])))}")
+        summary = summary[summary["metric"].isin(metric_names)]
+    source = {"run": run.id, "created": info.get("created"), "published": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+              "status": info.get("status"), "git_commit": env.get("git_commit"), "enginebench": __version__}
+    return baseline_from_summary(summary, experiment=str(cfg.get("name", info.get("name", ""))),
+                                 config_hash=str(info.get("config_hash", "")), dataset=str(cfg.get("dataset", "")),
+                                 dataset_variant=str(cfg.get("dataset_variant", "") or ""), dataset_hash=dataset_hash(run),
+                                 interval=interval, source=source)
+
+
+def write_baseline(baseline: dict[str, Any], path: str | Path) -> Path:
+    """Write a baseline as JSON, one entry per line (small diffs when a baseline is republished)."""
+    path = Path(path)
+    head = {k: v for k, v in baseline.items() if k != "entries"}
+    lines = ["{"] + [f"  {json.dumps(k)}: {json.dumps(v)}," for k, v in head.items()] + ['  "entries": [']
+    entries = [f"    {json.dumps(e, allow_nan=False)}" for e in baseline["entries"]]
+    lines += [",\n".join(entries)] if entries else []
+    lines += ["  ]", "}"]
+    if path.parent and not path.parent.is_dir():
+        raise BaselineError(f"cannot write {path}: folder {path.parent} does not exist")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+# -- reading ------------------------------------------------------------------------
+
+def resolve_baseline(ref: str | Path) -> Path:
+    """A baseline file path, or the name of a published baseline (``gas-turbine-nox-quick``)."""
+    path = Path(ref)
+    if path.is_file():
+        return path
+    if path.parent == Path(".") and (published_dir() / f"{path.stem}.json").is_file():
+        return published_dir() / f"{path.stem}.json"
+    names = sorted(p.stem for p in published_dir().glob("*.json"))
+    raise BaselineError(f"baseline {ref}: file not found; 'enginebench publish RUN -o FILE' writes one"
+                        f" (published: {', '.join(names) or 'none'})")
+
+
+def _bad(path: Path, where: str, what: str) -> BaselineError:
+    return BaselineError(f"baseline {path}: {where} {what}; re-create it with 'enginebench publish RUN -o {path}'")
+
+
+def _number(path: Path, where: str, key: str, value: Any, *, nullable: bool = False) -> float:
+    if value is None and nullable:
+        return float("nan")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        kind = "a finite number or null" if nullable else "a finite number"
+        raise _bad(path, where, f"key {key!r} must be {kind}, got {value!r}")
+    return float(value)
+
+
+def load_baseline(path: str | Path) -> dict[str, Any]:
+    """Read and validate a baseline file; any problem is one BaselineError naming the file, entry and key."""
+    path = resolve_baseline(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise _bad(path, "is not valid JSON:", f"{exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BaselineError(f"baseline {path}: cannot be read ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise _bad(path, "the top level", f"is not an enginebench baseline (it needs \"format\": \"{FORMAT}\")")
+    if doc.get("version") != VERSION:
+        raise _bad(path, "key 'version'", f"is {doc.get('version')!r}; this enginebench reads version {VERSION}")
+    for key in ("experiment", "config_hash", "interval"):
+        if not isinstance(doc.get(key), str):
+            raise _bad(path, "the top level", f"needs key {key!r} as a string, got {doc.get(key)!r}")
+    entries = doc.get("entries")
+    if not isinstance(entries, list) or not entries:
+        raise _bad(path, "key 'entries'", "must be a non-empty list of published values")
+    clean, seen = [], set()
+    for i, e in enumerate(entries):
+        where = f"entry {i}"
+        if not isinstance(e, dict):
+            raise _bad(path, where, f"must be an object, got {e!r}")
+        for key in _STR_KEYS:
+            if not isinstance(e.get(key), str) or not e.get(key):
+                raise _bad(path, where, f"key {key!r} must be a non-empty string, got {e.get(key)!r}")
+        where = f"entry {i} ({e['method']} {e['metric']}, {e['target']}, {e['split']})"
+        row = {k: e[k] for k in _STR_KEYS}
+        row["window"] = _number(path, where, "window", e.get("window"))
+        row["mean"] = _number(path, where, "mean", e.get("mean"))
+        row["ci_low"] = _number(path, where, "ci_low", e.get("ci_low"), nullable=True)
+        row["ci_high"] = _number(path, where, "ci_high", e.get("ci_high"), nullable=True)
+        if row["ci_low"] > row["mean"] or row["ci_high"] < row["mean"]:
+            raise _bad(path, where, f"has an interval [{e['ci_low']}, {e['ci_high']}] that does not contain its mean {e['mean']}")
+        for key, default in (("n_repeats", None), ("n_failed", 0)):
+            value = e.get(key, default)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "n_repeats" else 0):
+                raise _bad(path, where, f"key {key!r} must be a {'positive' if key == 'n_repeats' else 'non-negative'} integer, got {value!r}")
+            row[key] = value
+        if not isinstance(e.get("lower_is_better"), bool):
+            raise _bad(path, where, f"key 'lower_is_better' must be true or false, got {e.get('lower_is_better')!r}")
+        row["lower_is_better"] = e["lower_is_better"]
+        key = tuple(row[k] for k in JOIN)
+        if key in seen:
+            raise _bad(path, where, "repeats an earlier entry with the same target, mode, window, method, split and metric")
+        seen.add(key)
+        clean.append(row)
+    return {**doc, "entries": clean, "path": str(path)}
+
+
+# -- checking -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Tolerance:
+    """Slack added to the published bound: absolute (metric units) or relative to |published mean|."""
+
+    value: float = 0.0
+    relative: bool = False
+
+    def allowance(self, published_mean: np.ndarray) -> np.ndarray:
+        mean = np.asarray(published_mean, dtype=float)
+        return self.value * np.abs(mean) if self.relative else np.full(mean.shape, self.value)
+
+    def __str__(self) -> str:
+        return f"{self.value * 100:g}% of the published mean" if self.relative else f"{self.value:g} (absolute)"
+
+
+def parse_tolerance(text: str | float | None) -> Tolerance:
+    """``0.05`` -> absolute 0.05; ``5%`` -> 5 % of the published mean; empty/None -> 0."""
+    if text is None or str(text).strip() == "":
+        return Tolerance()
+    raw = str(text).strip()
+    m = re.fullmatch(r"([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(%?)", raw)
+    if not m:
+        raise DataError(f"--tolerance {raw!r} is not a number: give an absolute value (0.05) or a percentage of the published mean (5%)")
+    value = float(m.group(1))
+    return Tolerance(value / 100.0, True) if m.group(2) else Tolerance(value, False)
+
+
+STATUS_ORDER = ("regressed", "more failures", "missing", "ok")
+
+
+@dataclass
+class GuardResult:
+    """Every published entry with the run's value, limit, excess and status; warnings about the match."""
+
+    rows: pd.DataFrame
+    tolerance: Tolerance
+    warnings: list[str] = field(default_factory=list)
+    strict: bool = False
+    ignored: int = 0
+
+    @property
+    def failures(self) -> pd.DataFrame:
+        return self.rows[self.rows["status"] != "ok"]
+
+    @property
+    def passed(self) -> bool:
+        return self.failures.empty and not (self.strict and self.warnings)
+
+
+def check(baseline: dict[str, Any], summary: pd.DataFrame, tolerance: Tolerance = Tolerance()) -> tuple[pd.DataFrame, int]:
+    """(rows, ignored): apply the guard rule to every published entry against a run's summary.
+
+    rows has the JOIN columns, lower_is_better, published mean/ci_low/ci_high/n_repeats/n_failed,
+    run_mean, run_n_repeats, run_n_failed, limit, excess (> 0: beyond the limit by that much),
+    excess_rel (excess / |published mean|) and status. ``ignored`` counts run values not published.
+    """
+    pub = pd.DataFrame(baseline["entries"])
+    pub["window"] = pub["window"].astype(float)
+    run = summary[JOIN + ["mean", "n_repeats", "n_failed"]].rename(
+        columns={"mean": "run_mean", "n_repeats": "run_n_repeats", "n_failed": "run_n_failed"}).copy()
+    run["window"] = run["window"].astype(float)
+    m = pub.merge(run, on=JOIN, how="left", validate="one_to_one")
+    ignored = len(run) - int(m["run_mean"].notna().sum())
+    lower = m["lower_is_better"].to_numpy(dtype=bool)
+    mean = m["mean"].to_numpy(dtype=float)
+    bound = np.where(lower, m["ci_high"].fillna(m["mean"]), m["ci_low"].fillna(m["mean"]))
+    allow = tolerance.allowance(mean)
+    m["limit"] = np.where(lower, bound + allow, bound - allow)
+    value = m["run_mean"].to_numpy(dtype=float)
+    m["excess"] = np.where(lower, value - m["limit"], m["limit"] - value)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m["excess_rel"] = np.where(mean != 0, m["excess"] / np.abs(mean), np.nan)
+    missing = m["run_mean"].isna().to_numpy()
+    regressed = ~missing & (m["excess"].to_numpy(dtype=float) > 0)
+    failures = ~missing & (m["run_n_failed"].fillna(0).to_numpy() > m["n_failed"].to_numpy())
+    m["status"] = np.select([missing, regressed, failures], ["missing", "regressed", "more failures"], "ok")
+    return m, max(ignored, 0)
+
+
+def guard_run(run, baseline: dict[str, Any], tolerance: Tolerance = Tolerance(), strict: bool = False) -> GuardResult:
+    """Check a stored run against a loaded baseline (see the module docstring for the rule)."""
+    info, cfg = run.info(), run.config()
+    rows, ignored = check(baseline, summarize(run.metrics(), interval=baseline.get("interval", "t")), tolerance)
+    warnings = []
+    if cfg.get("name") != baseline["experiment"]:
+        warnings.append(f"run {run.id} is experiment {cfg.get('name')!r}, the baseline is {baseline['experiment']!r}")
+    if info.get("config_hash") != baseline["config_hash"]:
+        warnings.append(f"run {run.id} has config hash {str(info.get('config_hash'))[:12]}, the baseline "
+                        f"{baseline['config_hash'][:12]}: the experiment was changed (repetitions, seed, methods, options...)")
+    published_hash = baseline.get("dataset_hash")
+    run_hash = dataset_hash(run) if published_hash else None
+    if published_hash and run_hash and run_hash != published_hash:
+        warnings.append(f"the dataset differs from the published one (content hash {run_hash[:12]} vs {published_hash[:12]})")
+    if info.get("status") != "finished":
+        warnings.append(f"run {run.id} is {info.get('status')} ({info.get('finished_jobs', '?')}/{info.get('n_jobs', '?')} jobs)")
+    return GuardResult(rows, tolerance, warnings, strict, ignored)
+
+
+def _published(r) -> str:
+    if not np.isfinite(r.ci_low) and not np.isfinite(r.ci_high):
+        return f"{num(r.mean, 5)} (no interval)"
+    return f"{num(r.mean, 5)} [{num(r.ci_low, 5)}, {num(r.ci_high, 5)}]"
+
+
+def report(result: GuardResult, run_id: str = "", baseline_path: str = "", all_rows: bool = False) -> str:
+    """What the guard found, as text: a verdict line, warnings, and a table of what failed (or of everything)."""
+    rows = result.rows
+    failed = result.failures
+    where = f" {run_id}" if run_id else ""
+    against = f" against {baseline_path}" if baseline_path else ""
+    counts = ", ".join(f"{int((failed['status'] == s).sum())} {s}" for s in STATUS_ORDER[:-1] if (failed["status"] == s).any())
+    lines = []
+    if result.passed:
+        lines.append(f"guard passed: run{where}{against}: all {len(rows)} published values are within their interval "
+                     f"plus tolerance {result.tolerance}" + (f"; {result.ignored} value(s) of the run not published, ignored" if result.ignored else ""))
+    elif failed.empty:
+        lines.append(f"guard FAILED (strict): run{where}{against}: every value is within its limit, but the run does not match the baseline")
+    else:
+        lines.append(f"guard FAILED: run{where}{against}: {len(failed)} of {len(rows)} published values fail ({counts}); "
+                     f"tolerance {result.tolerance}")
+    lines += [f"warning: {w}" for w in result.warnings]
+    shown = rows if all_rows else failed
+    if shown.empty:
+        return "\n".join(lines) + "\n"
+    shown = shown.assign(_order=shown["status"].map(STATUS_ORDER.index)).sort_values(
+        ["_order", "excess_rel"], ascending=[True, False], kind="stable")
+    header = ["status", "target", "mode", "window", "split", "method", "metric", "better", "published mean [interval]",
+              "run mean", "allowed limit", "excess", "excess %"]
+    body = []
+    for r in shown.itertuples():
+        missing = not np.isfinite(r.run_mean)
+        status = r.status + (f" ({int(r.run_n_failed)} vs {int(r.n_failed)} failed)" if r.status == "more failures" else "")
+        body.append([status, r.target, r.mode, f"{r.window:g}", r.split, r.method, r.metric,
+                     "lower" if r.lower_is_better else "higher", _published(r),
+                     "missing" if missing else num(r.run_mean, 5), num(r.limit, 5),
+                     "" if missing else f"{r.excess:+.3g}", "" if missing or not np.isfinite(r.excess_rel) else f"{r.excess_rel:+.1%}"])
+    right = [False] * 8 + [True] * 5
+    note = ("excess = how far the run's mean is beyond the allowed limit (published interval bound plus tolerance); "
+            "positive = regressed")
+    return "\n".join(lines) + "\n\n" + text_table(header, body, right) + note + "\n"

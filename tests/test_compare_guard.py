@@ -1,0 +1,352 @@
+"""compare, guard and publish: runs against runs, and runs against published baselines."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+import pandas as pd
+import pytest
+import scipy.stats
+from click.testing import CliRunner
+
+from enginebench.cli import compare as compare_cli
+from enginebench.cli.main import Group
+from enginebench.errors import DataError
+from enginebench.experiments.runner import run_experiment
+from enginebench.experiments.spec import from_dict, load_spec
+from enginebench.results.compare import compare_metrics, pairing, repetition_values, welch_interval
+from enginebench.results.guard import (
+    BaselineError, Tolerance, baseline_from_summary, check, load_baseline, parse_tolerance, published_dir,
+)
+from enginebench.results.store import RunStore
+from enginebench.results.tables import summarize
+
+
+def _make_toy():
+    """tests/conftest.py's toy dataset (importlib import mode: conftest is not importable by name)."""
+    spec = importlib.util.spec_from_file_location("_toy_conftest", Path(__file__).with_name("conftest.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.make_toy()
+
+
+KRLS = {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}
+
+
+@click.group(cls=Group)
+def cli() -> None:
+    """The three verbs under the main command's error handling (main.py registers them)."""
+
+
+for _cmd in (compare_cli.compare, compare_cli.guard, compare_cli.publish):
+    cli.add_command(_cmd)
+
+
+def _spec(dataset, **changes):
+    raw = {"name": "toy-exp", "dataset": str(dataset), "targets": ["y"], "repetitions": 4, "seed": 7,
+           "train_size": 150, "selection": {"kind": "bootstrap", "resamples": 2},
+           "methods": {"naive-mean": {}, "krls": KRLS}}
+    raw.update(changes)
+    return from_dict(raw, origin="test")
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Three toy runs: a (reference), b (other seed, krls only), c (same seed, krls over-regularised)."""
+    from enginebench.datasets.io import write_dataset
+
+    root = tmp_path_factory.mktemp("cg")
+    data = write_dataset(_make_toy(), root / "toy.parquet")
+    store = RunStore(root / "runs")
+    a = run_experiment(_spec(data), store, workers=1).run
+    b = run_experiment(_spec(data, seed=8, methods={"krls": KRLS}), store, workers=1).run
+    c = run_experiment(_spec(data, methods={"naive-mean": {}, "krls": {"gamma_grid": [-2, 0, 3], "lambda_grid": [2, 3, 2]}}),
+                       store, workers=1).run
+    return {"a": a, "b": b, "c": c, "store": store.root, "data": data}
+
+
+@pytest.fixture
+def invoke(runs, monkeypatch):
+    monkeypatch.setenv("ENGINEBENCH_STORE", str(runs["store"]))
+    runner = CliRunner()
+    return lambda *args: runner.invoke(cli, [str(a) for a in args])
+
+
+def _values(run, method, metric):
+    v = repetition_values(run.metrics())
+    return v[(v["method"] == method) & (v["metric"] == metric)].set_index("repetition")["value"].sort_index()
+
+
+# -- compare ------------------------------------------------------------------------
+
+def test_pairing_follows_the_subsample_seed(runs):
+    a, b, c = (runs[k].config() for k in "abc")
+    assert pairing(a, c)[0] is True
+    ok, reason = pairing(a, b)
+    assert ok is False and reason == "seed differs (7 vs 8)"
+
+
+def test_paired_comparison_matches_scipy(runs):
+    a, c = runs["a"], runs["c"]
+    table, unmatched = compare_metrics(a.metrics(), c.metrics(), paired=True)
+    assert unmatched.empty
+    row = table[(table["method"] == "krls") & (table["metric"] == "mae")].iloc[0]
+    xa, xc = _values(a, "krls", "mae"), _values(c, "krls", "mae")
+    ref = scipy.stats.ttest_rel(xc, xa)
+    ci = ref.confidence_interval(0.95)
+    assert row["difference"] == pytest.approx((xc - xa).mean(), rel=1e-12)
+    assert (row["diff_low"], row["diff_high"]) == pytest.approx((ci.low, ci.high), rel=1e-10)
+    assert row["t_pvalue"] == pytest.approx(ref.pvalue, rel=1e-10)
+    assert row["rank_pvalue"] == pytest.approx(scipy.stats.wilcoxon(xc, xa).pvalue, rel=1e-10)
+    assert row["n_pairs"] == 4 and row["t_test"] == "paired t"
+    # lambda >= 100 flattens krls: B's mean is above A's interval, so mae "worse" and ppmcc "worse" (lower)
+    assert row["mean_b"] > row["ci_high_a"] and row["verdict"] == "worse"
+    ppmcc = table[(table["method"] == "krls") & (table["metric"] == "ppmcc")].iloc[0]
+    assert ppmcc["mean_b"] < ppmcc["ci_low_a"] and ppmcc["verdict"] == "worse" and not ppmcc["lower_is_better"]
+    # the same seed gives naive-mean the same training rows: identical values, no change
+    naive = table[table["method"] == "naive-mean"]
+    assert (naive["difference"] == 0).all() and (naive["t_pvalue"] == 1.0).all() and (naive["verdict"] == "within").all()
+
+
+def test_unpaired_comparison_matches_scipy(runs):
+    a, b = runs["a"], runs["b"]
+    table, unmatched = compare_metrics(a.metrics(), b.metrics(), paired=False, metric_names=["mae", "rmae"])
+    assert set(unmatched["method"]) == {"naive-mean"} and set(unmatched["only_in"]) == {"A"}
+    row = table[(table["method"] == "krls") & (table["metric"] == "mae")].iloc[0]
+    xa, xb = _values(a, "krls", "mae").to_numpy(), _values(b, "krls", "mae").to_numpy()
+    ref = scipy.stats.ttest_ind(xb, xa, equal_var=False)
+    ci = ref.confidence_interval(0.95)
+    assert (row["diff_low"], row["diff_high"]) == pytest.approx((ci.low, ci.high), rel=1e-10)
+    assert row["t_pvalue"] == pytest.approx(ref.pvalue, rel=1e-10)
+    assert row["rank_pvalue"] == pytest.approx(scipy.stats.mannwhitneyu(xb, xa, alternative="two-sided").pvalue, rel=1e-12)
+    assert row["rank_test"] == "Mann-Whitney U" and row["n_pairs"] == 0
+
+
+def test_welch_interval_against_scipy_and_constant_samples():
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(0, 1, 7), rng.normal(0.5, 3, 11)
+    ci = scipy.stats.ttest_ind(b, a, equal_var=False).confidence_interval(0.9)
+    d, low, high = welch_interval(a, b, level=0.9)
+    assert d == pytest.approx(b.mean() - a.mean()) and (low, high) == pytest.approx((ci.low, ci.high), rel=1e-12)
+    assert welch_interval([1.0, 1.0], [3.0, 3.0]) == (2.0, 2.0, 2.0)
+    with pytest.raises(DataError, match="at least 2 repetitions per run, got 1 and 2"):
+        welch_interval([1.0], [1.0, 2.0])
+
+
+def _long(values: dict[str, list[float]], metric: str) -> pd.DataFrame:
+    rows = [{"dataset": "d", "target": "y", "mode": "static", "window": 0.0, "method": m, "family": "x",
+             "repetition": r, "split": "test", "metric": metric, "value": v, "status": "ok"}
+            for m, vs in values.items() for r, v in enumerate(vs)]
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("metric, b_values, verdict", [
+    ("mae", [2.0, 2.3, 1.8, 2.1], "worse"),     # lower is better, above A's interval
+    ("mae", [0.5, 0.7, 0.3, 0.45], "better"),
+    ("mae", [1.0, 1.2, 0.8, 1.0], "within"),
+    ("ppmcc", [2.0, 2.4, 1.9, 2.05], "better"),  # higher is better: mirrored
+    ("ppmcc", [0.5, 0.65, 0.4, 0.5], "worse"),
+])
+def test_verdict_is_relative_to_the_reference_interval(metric, b_values, verdict):
+    a = _long({"m": [1.0, 1.1, 0.9, 1.0]}, metric)
+    table, _ = compare_metrics(a, _long({"m": b_values}, metric), paired=True)
+    half = scipy.stats.t.ppf(0.975, 3) * np.std([1.0, 1.1, 0.9, 1.0], ddof=1) / 2
+    assert table["ci_high_a"].iloc[0] == pytest.approx(1.0 + half)
+    assert table["verdict"].iloc[0] == verdict
+
+
+def test_compare_cli_states_what_changed(invoke, runs):
+    out = invoke("compare", runs["a"].id, runs["c"].id)
+    assert out.exit_code == 0, out.output
+    assert "Repetitions pair up" in out.output and "paired t-test and Wilcoxon signed-rank test" in out.output
+    assert "Changed beyond A's interval (4 of 7 metric rows):" in out.output
+    assert "krls mae (y, static, window 0 s, test): worse in B" in out.output
+    assert "Within A's interval: 3 of 7 metric rows." in out.output
+    out = invoke("compare", runs["a"].id, runs["b"].id)
+    assert out.exit_code == 0, out.output
+    assert "Repetitions do not pair up: seed differs (7 vs 8); tests: Welch t-test and Mann-Whitney U test." in out.output
+    assert f"Only in A ({runs['a'].id}), not compared: method(s) naive-mean." in out.output
+    csv = invoke("compare", runs["a"].id, runs["c"].id, "--format", "csv", "--metrics", "all")
+    frame = pd.read_csv(pd.io.common.StringIO(csv.output))
+    assert {"skill_mae", "r2", "rmse"} <= set(frame["metric"]) and len(frame) > 7
+
+
+# -- publish and guard ----------------------------------------------------------------
+
+def test_publish_round_trip(invoke, runs, tmp_path):
+    from enginebench.datasets.io import read_metadata
+
+    a, path = runs["a"], tmp_path / "a.json"
+    out = invoke("publish", a.id, "-o", path)
+    assert out.exit_code == 0, out.output
+    assert out.output.startswith(f"wrote {path}: 21 published values of experiment toy-exp")
+    doc = load_baseline(path)
+    summary = summarize(a.metrics())
+    assert len(doc["entries"]) == len(summary)
+    assert doc["experiment"] == "toy-exp" and doc["config_hash"] == a.info()["config_hash"] and doc["interval"] == "t"
+    assert doc["dataset_hash"] == read_metadata(runs["data"])["content_hash"]
+    got = pd.DataFrame(doc["entries"]).set_index(["method", "metric"]).sort_index()
+    want = summary.set_index(["method", "metric"]).sort_index()
+    for col in ("mean", "ci_low", "ci_high"):  # exact: JSON keeps every digit of a float
+        assert np.array_equal(got[col].to_numpy(), want[col].to_numpy())
+    assert (got["n_repeats"] == 4).all()
+    assert got.loc[("krls", "mae"), "lower_is_better"] and not got.loc[("krls", "ppmcc"), "lower_is_better"]
+    assert not got.loc[("krls", "skill_mae"), "lower_is_better"]
+    json.loads(path.read_text())  # plain JSON, readable by any tool
+
+
+def test_guard_passes_on_the_runs_own_baseline(invoke, runs, tmp_path):
+    path = tmp_path / "a.json"
+    invoke("publish", runs["a"].id, "-o", path)
+    out = invoke("guard", runs["a"].id, "--baseline", path)
+    assert out.exit_code == 0, out.output
+    assert out.output.startswith(f"guard passed: run {runs['a'].id} against {path}: all 21 published values")
+    assert "warning" not in out.output
+
+
+def _perturbed(invoke, runs, tmp_path):
+    """A's baseline with krls mae's published interval moved 0.1 below the run's mean, krls ppmcc's
+    lower bound 0.05 above it, and an entry for a method the run lacks."""
+    published = tmp_path / "a.json"
+    invoke("publish", runs["a"].id, "-o", published)
+    doc = json.loads(published.read_text())
+    mean = {(e["method"], e["metric"]): e["mean"] for e in doc["entries"]}
+    for e in doc["entries"]:
+        if (e["method"], e["metric"]) == ("krls", "mae"):
+            e.update(mean=e["mean"] - 0.2, ci_low=e["mean"] - 0.3, ci_high=e["mean"] - 0.1)
+        if (e["method"], e["metric"]) == ("krls", "ppmcc"):
+            e.update(mean=e["mean"] + 0.1, ci_low=e["mean"] + 0.05, ci_high=e["mean"] + 0.15)
+    doc["entries"].append({**doc["entries"][0], "method": "sindy", "metric": "mae"})
+    bad = tmp_path / "perturbed.json"
+    bad.write_text(json.dumps(doc))
+    return bad, mean
+
+
+def test_guard_fails_with_a_readable_table_on_a_perturbed_baseline(invoke, runs, tmp_path):
+    bad, mean = _perturbed(invoke, runs, tmp_path)
+    out = invoke("guard", runs["a"].id, "--baseline", bad)
+    assert out.exit_code == 1, out.output
+    lines = out.output.splitlines()
+    assert lines[0].startswith(f"guard FAILED: run {runs['a'].id} against {bad}: 3 of 22 published values fail "
+                               "(2 regressed, 1 missing); tolerance 0 (absolute)")
+    header = next(i for i, l in enumerate(lines) if l.startswith("status"))
+    for col in ("method", "metric", "published mean [interval]", "run mean", "allowed limit", "excess"):
+        assert col in lines[header]
+    table = {tuple(l.split()[5:7]): l for l in lines[header + 2:header + 5]}
+    mae = table[("krls", "mae")]
+    assert mae.split()[0] == "regressed" and f"{mean['krls', 'mae']:.5g}" in mae and "+0.1 " in mae
+    ppmcc = table[("krls", "ppmcc")]
+    assert "higher" in ppmcc and "+0.05 " in ppmcc and f"{mean['krls', 'ppmcc'] + 0.05:.5g}" in ppmcc
+    assert table[("sindy", "mae")].split()[0] == "missing"
+    # an absolute tolerance that covers both regressions leaves only the missing method
+    out = invoke("guard", runs["a"].id, "--baseline", bad, "--tolerance", "0.11")
+    assert out.exit_code == 1 and "1 of 22 published values fail (1 missing)" in out.output
+
+
+def test_guard_rule_numbers_with_relative_tolerance():
+    pub = {"entries": [
+        {"target": "y", "mode": "static", "window": 0, "method": "m", "split": "test", "metric": "mae",
+         "mean": 2.0, "ci_low": 1.8, "ci_high": 2.2, "n_repeats": 30, "n_failed": 0, "lower_is_better": True},
+        {"target": "y", "mode": "static", "window": 0, "method": "m", "split": "test", "metric": "ppmcc",
+         "mean": 0.8, "ci_low": float("nan"), "ci_high": float("nan"), "n_repeats": 1, "n_failed": 0, "lower_is_better": False},
+    ]}
+    summary = pd.DataFrame({"target": "y", "mode": "static", "window": [0.0, 0.0, 0.0], "method": "m", "split": "test",
+                            "metric": ["mae", "ppmcc", "rmse"], "mean": [2.35, 0.75, 9.0], "n_repeats": 30, "n_failed": 0})
+    rows, ignored = check(pub, summary, parse_tolerance("5%"))
+    assert ignored == 1  # rmse is not published
+    mae, ppmcc = rows.iloc[0], rows.iloc[1]
+    assert mae["limit"] == pytest.approx(2.2 + 0.05 * 2.0) and mae["excess"] == pytest.approx(0.05)
+    assert mae["status"] == "regressed"
+    # no interval: the bound is the published mean; higher is better, so the limit is below it
+    assert ppmcc["limit"] == pytest.approx(0.8 - 0.04) and ppmcc["excess"] == pytest.approx(0.01)
+    rows, _ = check(pub, summary, Tolerance(0.2))
+    assert list(rows["status"]) == ["ok", "ok"] and rows["excess"].iloc[0] == pytest.approx(-0.05)
+
+
+@pytest.mark.parametrize("text, tol", [("0.05", Tolerance(0.05)), ("5%", Tolerance(0.05, True)), (" 2.5 % ", Tolerance(0.025, True)),
+                                       ("1e-3", Tolerance(0.001)), ("", Tolerance())])
+def test_parse_tolerance(text, tol):
+    assert parse_tolerance(text) == tol
+
+
+def test_config_mismatch_warns_and_fails_under_strict(invoke, runs, tmp_path):
+    path = tmp_path / "a.json"
+    invoke("publish", runs["a"].id, "-o", path)
+    doc = json.loads(path.read_text())
+    doc["config_hash"] = "0" * 64
+    path.write_text(json.dumps(doc))
+    out = invoke("guard", runs["a"].id, "-b", path)
+    assert out.exit_code == 0 and "warning: run " in out.output and "the experiment was changed" in out.output
+    out = invoke("guard", runs["a"].id, "-b", path, "--strict")
+    assert out.exit_code == 1 and out.output.startswith("guard FAILED (strict)")
+
+
+def _entry(**changes):
+    e = {"target": "y", "mode": "static", "window": 0.0, "method": "krls", "split": "test", "metric": "mae",
+         "mean": 1.0, "ci_low": 0.9, "ci_high": 1.1, "n_repeats": 4, "lower_is_better": True}
+    return {**e, **changes}
+
+
+def _doc(entries, **changes):
+    return {"format": "enginebench-baseline", "version": 1, "experiment": "x", "config_hash": "h", "interval": "t",
+            "entries": entries, **changes}
+
+
+@pytest.mark.parametrize("content, message", [
+    ('{"format": "enginebench-baseline", ', "is not valid JSON: Expecting property name enclosed in double quotes at line 1 column 36"),
+    (json.dumps([1, 2]), "the top level is not an enginebench baseline"),
+    (json.dumps(_doc([], version=2)), "key 'version' is 2; this enginebench reads version 1"),
+    (json.dumps(_doc([])), "key 'entries' must be a non-empty list of published values"),
+    (json.dumps(_doc([_entry(mean="abc")])), "entry 0 (krls mae, y, test) key 'mean' must be a finite number, got 'abc'"),
+    (json.dumps(_doc([_entry(), _entry(metric="")])), "entry 1 key 'metric' must be a non-empty string, got ''"),
+    (json.dumps(_doc([_entry(ci_high=0.5)])), "entry 0 (krls mae, y, test) has an interval [0.9, 0.5] that does not contain its mean 1.0"),
+    (json.dumps(_doc([_entry(n_repeats=0)])), "key 'n_repeats' must be a positive integer, got 0"),
+    (json.dumps(_doc([_entry(), _entry()])), "entry 1 (krls mae, y, test) repeats an earlier entry"),
+    (json.dumps(_doc([_entry(lower_is_better="yes")])), "key 'lower_is_better' must be true or false, got 'yes'"),
+])
+def test_malformed_baseline_is_one_error_line_with_exit_code_2(invoke, runs, tmp_path, content, message):
+    path = tmp_path / "bad.json"
+    path.write_text(content)
+    out = invoke("guard", runs["a"].id, "--baseline", path)
+    assert out.exit_code == 2, out.output
+    lines = out.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: baseline {path}") and message in lines[0], out.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["guard", "latest", "-b", "no-such-baseline"], "error: baseline no-such-baseline: file not found; 'enginebench publish RUN -o FILE' writes one"),
+    (["guard", "latest", "-b", "gas-turbine-nox-quick", "--tolerance", "abc"], "error: --tolerance 'abc' is not a number"),
+    (["compare", "nope", "latest"], "error: no run 'nope' in "),
+    (["publish", "latest", "-o", "/nonexistent/dir/x.json"], "error: cannot write /nonexistent/dir/x.json: folder /nonexistent/dir does not exist"),
+    (["publish", "latest", "-o", "x.json", "--metrics", "mae,bogus"], "has no metric(s) bogus; it has "),
+])
+def test_bad_arguments_are_one_error_line(invoke, args, message):
+    out = invoke(*args)
+    assert out.exit_code == 2, out.output
+    lines = out.output.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], out.output
+
+
+def test_baseline_from_summary_writes_null_for_missing_intervals():
+    summary = pd.DataFrame({"dataset": "d", "target": "y", "mode": "static", "window": [0.0], "method": "m", "split": "test",
+                            "metric": ["rmae"], "mean": [3.0], "ci_low": [np.nan], "ci_high": [np.nan], "n_repeats": [1],
+                            "n_failed": [0]})
+    doc = baseline_from_summary(summary, experiment="e", config_hash="h", dataset="d")
+    assert doc["entries"][0]["ci_low"] is None and doc["entries"][0]["lower_is_better"] is True
+
+
+def test_shipped_baseline_matches_the_builtin_quick_experiment():
+    doc = load_baseline("gas-turbine-nox-quick")
+    assert doc["path"] == str(published_dir() / "gas-turbine-nox-quick.json")
+    spec = load_spec("gas-turbine-nox-quick")
+    assert doc["experiment"] == spec.name and doc["config_hash"] == spec.config_hash()
+    entries = pd.DataFrame(doc["entries"])
+    assert set(entries["method"]) == set(spec.methods) and set(entries["target"]) == {"NOX"}
+    assert (entries["n_repeats"] == spec.repetitions).all() and set(entries["split"]) == {"test"}
+    assert {"mae", "rmae", "mape", "ppmcc"} <= set(entries["metric"])
+    with pytest.raises(BaselineError, match="file not found"):
+        load_baseline("gas-turbine-nox-full")
