@@ -83,7 +83,11 @@ class Spectral:
             raise MethodError("kernel matrix is empty: no training rows; give at least one training sample")
         if not np.isfinite(Q).all():
             raise MethodError("kernel matrix has nan/inf entries; check the features and gamma for nan/inf")
-        s, V = scipy.linalg.eigh(Q, driver="evd", overwrite_a=overwrite, check_finite=False)
+        try:  # divide and conquer is fastest, but LAPACK's syevd can fail to converge on
+            # nearly singular kernel matrices; the relatively robust driver then takes over
+            s, V = scipy.linalg.eigh(Q, driver="evd", overwrite_a=False, check_finite=False)
+        except np.linalg.LinAlgError:
+            s, V = scipy.linalg.eigh(Q, driver="evr", overwrite_a=overwrite, check_finite=False)
         scale = float(np.max(np.abs(s)))
         if s[0] < -NEGATIVE_EIG_RTOL * scale:
             raise MethodError(

@@ -312,3 +312,27 @@ def test_auto_solver_switches_above_the_row_threshold_and_grid_matches_fits():
 def test_unknown_solver_is_refused():
     with pytest.raises(MethodError, match="solver must be one of auto, exact, falkon, got 'magic'"):
         KRLS(solver="magic")
+
+
+def test_eigendecomposition_falls_back_when_divide_and_conquer_fails(monkeypatch):
+    """syevd occasionally fails on nearly singular kernel matrices (seen on real data)."""
+    import scipy.linalg
+
+    from enginebench.methods.kernels import Spectral
+
+    real = scipy.linalg.eigh
+    calls = []
+
+    def flaky(a, *args, driver=None, **kw):
+        calls.append(driver)
+        if driver == "evd":
+            raise np.linalg.LinAlgError("The leading minor of order 5 of B is not positive definite.")
+        return real(a, *args, driver=driver, **kw)
+
+    monkeypatch.setattr(scipy.linalg, "eigh", flaky)
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(20, 3))
+    Q = A @ A.T
+    spectral = Spectral.from_kernel(Q.copy(), overwrite=True)
+    assert calls == ["evd", "evr"]
+    np.testing.assert_allclose(spectral.V @ np.diag(spectral.s) @ spectral.V.T, Q, atol=1e-10)
