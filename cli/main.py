@@ -36,7 +36,7 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from enginebench.cli import compare, datasets, methods, rank, run, table
+    from enginebench.cli import calibrate, compare, datasets, learning_curve, methods, rank, run, table
 
     cli.add_command(run.run)
     cli.add_command(datasets.datasets)
@@ -47,6 +47,8 @@ def _register() -> None:
     cli.add_command(compare.compare)
     cli.add_command(compare.guard)
     cli.add_command(compare.publish)
+    cli.add_command(calibrate.calibrate)
+    cli.add_command(learning_curve.learning_curve)
 
 
 _register()

@@ -38,8 +38,12 @@ _KNOWN: dict[str, str] = {
 }
 
 
-def get_physical_model(name: str) -> PhysicalModel | None:
-    """The physical model a dataset declares by name, or None where it is not available."""
+def get_physical_model(name: str, meta: Mapping[str, Any] | None = None) -> PhysicalModel | None:
+    """The physical model a dataset declares by name, or None where it is not available.
+
+    A model class with a ``for_dataset(meta)`` constructor is built from the dataset's
+    metadata (e.g. which calibration and generator seed it goes with).
+    """
     import importlib
 
     target = _KNOWN.get(name)
@@ -50,4 +54,6 @@ def get_physical_model(name: str) -> PhysicalModel | None:
         factory = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError):
         return None
+    if meta is not None and hasattr(factory, "for_dataset"):
+        return factory.for_dataset(meta)
     return factory()

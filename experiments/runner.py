@@ -33,7 +33,7 @@ def physical_model_for(ds) -> object | None:
         return None
     from enginebench.datasets.physical import get_physical_model
 
-    return get_physical_model(name)
+    return get_physical_model(name, ds.meta)
 
 
 def prepare(spec: ExperimentSpec) -> Context:

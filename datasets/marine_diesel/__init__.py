@@ -7,13 +7,15 @@
 * ``calibrate_to_fat``: weighted least-squares calibration of the PM to factory
   acceptance test points (``calibration.py``); ``load_fat`` reads the seed's FAT table
   shipped as ``fat_seed000.csv``; ``simulator_fat`` measures FAT points on the true
-  engine (``fat.py``).
+  engine (``fat.py``); ``simulator_fat_params(seed)`` is the PM calibrated on them, the
+  calibration the ``marine-diesel`` experiments use (``MarineDieselPM`` default; the
+  generator records it as ``meta["pm_calibration"] = "simulator"``).
 """
 
-from enginebench.datasets.marine_diesel.calibration import calibrate_to_fat, seed_fat_params
+from enginebench.datasets.marine_diesel.calibration import calibrate_to_fat, seed_fat_params, simulator_fat_params
 from enginebench.datasets.marine_diesel.fat import load_fat, simulator_fat
 from enginebench.datasets.marine_diesel.generate import generate
 from enginebench.datasets.marine_diesel.pm import PM_NAME, MarineDieselPM
 
-__all__ = ["generate", "MarineDieselPM", "PM_NAME", "calibrate_to_fat", "seed_fat_params", "load_fat",
-           "simulator_fat"]
+__all__ = ["generate", "MarineDieselPM", "PM_NAME", "calibrate_to_fat", "seed_fat_params",
+           "simulator_fat_params", "load_fat", "simulator_fat"]

@@ -64,19 +64,70 @@ def propeller_law_power_w(speed_rpm: np.ndarray) -> np.ndarray:
 
 
 def load_fat(path: str | None = None) -> pd.DataFrame:
-    """The FAT table: the shipped seed fixture, or a CSV with the same columns at ``path``."""
+    """The FAT table: the shipped seed fixture, or a CSV with the same columns at ``path``.
+
+    Required columns: ``speed_rpm`` and every name of ``QUANTITIES``; optional: the
+    paper's ``<quantity>_pm_paper`` and ``<quantity>_pe_paper_pct``, and the shop-log
+    columns ``brake_power_kw``, ``fuel_rack_pct``, ``fuel_flow_kg_s``. Lines starting
+    with ``#`` are comments. A missing or unreadable file, a missing column, a
+    non-numeric, non-finite or non-positive value, a repeated speed or fewer than two
+    points raise ``DataError`` naming the file, column and row.
+    """
     if path is None:
         with resources.files("enginebench.datasets.marine_diesel").joinpath(FIXTURE).open("r") as fh:
             fat = pd.read_csv(fh, comment="#")
-        where = FIXTURE
-    else:
+        return check_fat(fat, FIXTURE)
+    where = str(path)
+    try:
         fat = pd.read_csv(path, comment="#")
-        where = str(path)
+    except FileNotFoundError:
+        raise DataError(f"FAT table {where}: file not found") from None
+    except IsADirectoryError:
+        raise DataError(f"FAT table {where}: is a folder, not a CSV file") from None
+    except pd.errors.EmptyDataError:
+        raise DataError(f"FAT table {where}: the file is empty; expected a CSV header with speed_rpm and "
+                        f"{', '.join(QUANTITIES)}") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DataError(f"FAT table {where}: not a readable CSV file ({first})") from None
+    return check_fat(fat, where)
+
+
+OPTIONAL_COLUMNS = ("brake_power_kw", "fuel_rack_pct", "fuel_flow_kg_s")
+"""Shop-log columns a FAT table may carry (``simulator_fat`` writes them)."""
+
+
+def check_fat(fat: pd.DataFrame, where: str) -> pd.DataFrame:
+    """Validate a FAT table (see ``load_fat``); returns it with numeric columns as floats."""
+    fat = fat.rename(columns=lambda c: str(c).strip())
     missing = [c for c in ("speed_rpm", *QUANTITIES) if c not in fat.columns]
     if missing:
         raise DataError(f"FAT table {where}: missing column(s) {', '.join(missing)}; "
                         f"expected speed_rpm and {', '.join(QUANTITIES)}")
-    return fat
+    if len(fat) < 2:
+        raise DataError(f"FAT table {where}: {len(fat)} data row(s); the calibration needs at least 2 FAT points")
+    paper = [f"{q}_{suffix}" for q in QUANTITIES for suffix in ("pm_paper", "pe_paper_pct")]
+    positive = ["speed_rpm", *QUANTITIES, *OPTIONAL_COLUMNS]
+    out = fat.copy()
+    for col in [c for c in (*positive, *paper) if c in fat.columns]:
+        values = pd.to_numeric(fat[col], errors="coerce").to_numpy(dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raw = fat[col].iloc[bad[0]]
+            raise DataError(f"FAT table {where}, column {col}, data row {bad[0] + 1}: value {raw!r} is not a finite "
+                            "number; fill in every FAT value")
+        if col in positive:
+            low = np.flatnonzero(values <= 0)
+            if low.size:
+                raise DataError(f"FAT table {where}, column {col}, data row {low[0] + 1}: value {values[low[0]]:g} "
+                                "must be positive (pressures absolute in bar, temperatures in degC, sfc in g/kWh)")
+        out[col] = values
+    dup = out["speed_rpm"].duplicated()
+    if dup.any():
+        row = int(np.flatnonzero(dup.to_numpy())[0])
+        raise DataError(f"FAT table {where}, column speed_rpm, data row {row + 1}: speed {out['speed_rpm'].iloc[row]:g} "
+                        "rpm appears twice; give one row per FAT point")
+    return out
 
 
 def simulator_fat(seed: int = 0) -> pd.DataFrame:

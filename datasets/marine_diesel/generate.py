@@ -13,6 +13,11 @@ after the turbine, and the cylinder-outlet averages) are ``internal``: they are 
 targets' components, so using them as inputs would leak the answer.
 
 Pressures are absolute (bar abs) except the peak cylinder pressure (bar).
+
+The meta names the physical model (``marine-diesel-pm``) and its calibration,
+``pm_calibration = "simulator"``: the PM is calibrated on the factory-test points of
+this seed's true engine (``fat.simulator_fat``), as the seed's PM was calibrated on its
+own engine's FAT; ``MarineDieselPM.for_dataset(meta)`` reads it.
 """
 
 from __future__ import annotations
@@ -234,6 +239,7 @@ def generate(size: str = "small", seed: int = 0, progress: Callable[[float], Non
         "seed": int(seed),
         "published_split": split,
         "physical_model": PM_NAME,
+        "pm_calibration": "simulator",
         "segment_manoeuvre_fraction": {str(k): round(float(v), 4) for k, v in man.items()},
         "thermocouple_time_constants_s": {
             "t_exhaust_before_turbine_a": cfg.tau_tc_in_s[0], "t_exhaust_before_turbine_b": cfg.tau_tc_in_s[1],

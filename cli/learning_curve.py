@@ -1,0 +1,80 @@
+"""``enginebench learning-curve``: test error against months of training data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from enginebench.cli.options import load_plugins, plugin_option, store_option
+
+
+@click.command("learning-curve")
+@click.argument("experiment")
+@click.option("--months", default="0.5,1,2,3,6", show_default=True,
+              help="Comma-separated amounts of training data: the first N months of the training period, by time.")
+@click.option("--methods", default="krls,mtl-krls", show_default=True,
+              help="Comma-separated methods (options from the experiment where it sets them).")
+@click.option("--repeats", type=click.IntRange(min=1), default=None, help="Repetitions (overrides the experiment).")
+@click.option("--rows", type=click.Choice(["proportional", "fixed"]), default="proportional", show_default=True,
+              help="Training rows per amount: the experiment's train_size scaled by the share of the training "
+                   "period covered (more months, more rows), or train_size for every amount.")
+@click.option("--train-size", type=click.IntRange(min=0), default=None,
+              help="Training subsample of the whole training period (overrides the experiment; 0 = all rows).")
+@click.option("--metric", default="mae", show_default=True, help="Metric of the curve (test part).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+              help="PNG file for the plot [default: learning_curve.png in the run folder].")
+@click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores].")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@store_option
+@plugin_option
+def learning_curve(experiment: str, months: str, methods: str, repeats, rows: str, train_size, metric: str,
+                   plot_path, workers, quiet, store, plugins) -> None:
+    """Run EXPERIMENT's methods on the first N months of its training data, for each N in --months.
+
+    Every amount is scored on the experiment's unchanged test part, with its
+    repetitions, subsampling and model selection. The jobs are stored as one run
+    (splits read 'test@3mo'); the table prints the test metric's mean and Student-t
+    95% interval per amount, and a PNG plot is written when matplotlib is installed.
+    """
+    from enginebench.experiments.learning_curve import (
+        PLOT_FILE, SUMMARY_FILE, curve_table, parse_months, plot_curve, run_learning_curve, summarize_curve,
+    )
+    from enginebench.experiments.spec import load_spec
+    from enginebench.results.store import RunStore
+
+    load_plugins(plugins)
+    amounts = parse_months(months)
+    spec = load_spec(experiment)
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    spec = spec.with_overrides(repetitions=repeats, train_size=train_size, methods=chosen,
+                               method_options={k: v for k, v in spec.method_options.items() if k in chosen})
+    console = Console(stderr=True)
+    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=quiet, transient=False)
+    with progress:
+        task = progress.add_task(f"{spec.name} learning curve: preparing", total=None)
+
+        def tick(done: int, total: int, job) -> None:
+            progress.update(task, completed=done, total=total,
+                            description=f"{spec.name}: {job.split} {job.method} r{job.repetition}")
+
+        result = run_learning_curve(spec, amounts, RunStore(store), rows=rows, workers=workers,
+                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=tick)
+    summary = (result.run.read_table(SUMMARY_FILE) if metric == "mae"
+               else summarize_curve(result.run.metrics(), metric=metric))
+    click.echo(f"Learning curve of {spec.name} ({spec.dataset}, {spec.mode}); amounts: "
+               + ", ".join(f"{a.months:g} mo = {sum(a.hours.values()):.1f} h logged"
+                           + (" (the whole training period)" if a.whole else "") for a in result.amounts))
+    click.echo(curve_table(summary), nl=False)
+    if result.n_failed:
+        click.echo(f"{result.n_failed} of {result.n_jobs} jobs failed; they are counted in n_failed.")
+    written = plot_curve(summary, plot_path or result.run.path / PLOT_FILE) if not summary.empty else None
+    if written is None:
+        click.echo("plot skipped: matplotlib is not installed (pip install matplotlib)" if not summary.empty
+                   else "plot skipped: nothing finished")
+    else:
+        click.echo(f"plot: {written}")
+    click.echo(f"run {result.run.id} stored in {result.run.path}")
