@@ -223,7 +223,9 @@ lambda_grid = [-3, -1, 5]
 ''')
     env = {**os.environ, "ENGINEBENCH_STORE": str(tmp_path / "runs")}
     cmd = [sys.executable, "-c", "from enginebench.cli.main import main; main()"]
-    proc = subprocess.Popen([*cmd, "run", str(exp), "-j", "1", "-q"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # cwd outside the checkout: there `python -c` would import the source folder enginebench/
+    proc = subprocess.Popen([*cmd, "run", str(exp), "-j", "1", "-q"], env=env, cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     jobs_dir = None
     deadline = time.time() + 120
     while time.time() < deadline:
@@ -233,14 +235,14 @@ lambda_grid = [-3, -1, 5]
             break
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert jobs_dir is not None, "the run never wrote three jobs"
+    _, err = proc.communicate()
+    assert jobs_dir is not None, f"the run never wrote three jobs: {err.decode()[-500:]}"
     store = RunStore(tmp_path / "runs")
     (run,) = store.runs()
     n_before = len(run.finished_jobs())
     assert 3 <= n_before < 16
     run.metrics()  # every finished job file is readable
-    out = subprocess.run([*cmd, "run", "--resume", run.id, "-j", "1", "-q"], env=env, capture_output=True, text=True)
+    out = subprocess.run([*cmd, "run", "--resume", run.id, "-j", "1", "-q"], env=env, cwd=tmp_path, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert len(run.finished_jobs()) == 16 and run.info()["status"] == "finished"
     assert not list(jobs_dir.glob(".*"))  # no temporary file left behind
