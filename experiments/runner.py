@@ -45,6 +45,7 @@ def prepare(spec: ExperimentSpec) -> Context:
         method.check_mode(spec.mode)
         methods[name] = method
     ds = catalog.load(spec.dataset, variant=spec.dataset_variant)
+    dataset_hash = ds.content_hash()  # of the data as stored, before this experiment re-roles columns
     if spec.roles:
         ds = ds.with_roles(spec.roles)
     pm = physical_model_for(ds)
@@ -55,7 +56,7 @@ def prepare(spec: ExperimentSpec) -> Context:
         parts = {name: make_samples(part, [target], spec.mode, window, physical_model=pm)
                  for name, part in split.parts().items()}
         problems[(target, window, split.name)] = Problem(train=train, parts=parts)
-    return Context(spec=spec, dataset=ds.name, problems=problems, methods=methods, dataset_hash=ds.content_hash())
+    return Context(spec=spec, dataset=ds.name, problems=problems, methods=methods, dataset_hash=dataset_hash)
 
 
 def plan(ctx: Context) -> list[Job]:
