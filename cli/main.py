@@ -36,7 +36,7 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from enginebench.cli import calibrate, compare, datasets, learning_curve, methods, rank, run, table
+    from enginebench.cli import calibrate, compare, datasets, layout, learning_curve, methods, rank, run, table
 
     cli.add_command(run.run)
     cli.add_command(datasets.datasets)
@@ -49,6 +49,8 @@ def _register() -> None:
     cli.add_command(compare.publish)
     cli.add_command(calibrate.calibrate)
     cli.add_command(learning_curve.learning_curve)
+    cli.add_command(layout.layout)
+    cli.add_command(layout.plots)
 
 
 _register()

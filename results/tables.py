@@ -182,10 +182,13 @@ def _drop_constant_levels(cells: pd.DataFrame, bold: pd.DataFrame) -> tuple[pd.D
 
 def to_rich(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS, title: str | None = None):
     """A rich Table for the terminal; levels that never change go to the title."""
+    from rich.markup import escape
     from rich.table import Table
 
     cells, bold = wide(summary, metrics)
     cells, bold, fixed = _drop_constant_levels(cells, bold)
+    cells = cells.rename(index=lambda v: escape(v) if isinstance(v, str) else v)
+    bold = bold.rename(index=lambda v: escape(v) if isinstance(v, str) else v)
     title = " | ".join(t for t in (title, fixed) if t) or None
     table = Table(title=title, caption=interval_note(summary))
     for i, h in enumerate(_header(cells)):

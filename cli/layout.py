@@ -1,0 +1,95 @@
+"""``enginebench layout`` (a run's table in a seed's layout) and ``enginebench plots`` (trajectory figures)."""
+
+from __future__ import annotations
+
+import click
+
+from enginebench.cli.options import load_plugins, plugin_option, store_option
+
+
+@click.command()
+@click.argument("run_refs", metavar="RUN...", nargs=-1, required=True)
+@click.option("--seed003", "layout", flag_value="seed003", default=True,
+              help="Turboshaft paper, Tables 2-3: RMAE mean ± SD, median, IQR over trajectories (validation, test).")
+@click.option("--seed000", "layout", flag_value="seed000",
+              help="Diesel paper, Tables 8-9: rows Δ x model; MAE, MAPE, PPMCC mean ± 95% CI (test).")
+@click.option("--literature/--no-literature", default=True, show_default=True,
+              help="Add the paper's own rows, labelled as literature (confidential data; not comparable).")
+@click.option("--format", "fmt", type=click.Choice(["md", "csv"]), default="md", show_default=True)
+@click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
+@store_option
+def layout(run_refs: tuple[str, ...], layout: str, literature: bool, fmt: str, output, store) -> None:
+    """Print RUN's results in a seed paper's table layout.
+
+    Several runs are merged into one table (e.g. the turboshaft WF, TRQ and TRQ-ideal
+    runs make Tables 2-3); a method may appear in only one run per target. The seed-003
+    layout adds a paired test between the two best run-time methods of each target.
+    """
+    import pandas as pd
+
+    from enginebench.errors import DataError
+    from enginebench.results import layouts
+    from enginebench.results.store import RunStore
+
+    rs = RunStore(store)
+    frames, owner, datasets = [], {}, []
+    seen: set[str] = set()
+    for ref in run_refs:
+        run = rs.get(ref)
+        if run.id in seen:
+            continue
+        seen.add(run.id)
+        m = run.metrics()
+        for key in m[["target", "method"]].drop_duplicates().itertuples(index=False):
+            if tuple(key) in owner and owner[tuple(key)] != run.id:
+                raise DataError(f"runs {owner[tuple(key)]} and {run.id} both hold method {key.method!r} for target "
+                                f"{key.target!r}; pass only one of them")
+            owner[tuple(key)] = run.id
+        frames.append(m)
+        datasets.append(str(run.config().get("dataset", "")))
+    metrics = pd.concat(frames, ignore_index=True)
+    dataset = ", ".join(dict.fromkeys(d for d in datasets if d))
+    if layout == "seed003":
+        table = layouts.seed003_table(metrics, literature=literature)
+        text = (table.to_csv(index=False) if fmt == "csv"
+                else layouts.seed003_markdown(table, layouts.seed003_paired(metrics), dataset=dataset))
+    else:
+        table = layouts.seed000_table(metrics, literature=literature)
+        text = table.to_csv(index=False) if fmt == "csv" else layouts.seed000_markdown(table, dataset=dataset)
+    if output:
+        with open(output, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        click.echo(f"wrote {output}", err=True)
+    else:
+        click.echo(text, nl=False)
+
+
+@click.command()
+@click.argument("run_ref", metavar="RUN", default="latest")
+@click.option("--output", "-o", "out_dir", type=click.Path(file_okay=False), required=True, help="Folder for the PNG files.")
+@click.option("--methods", default=None, help="Comma-separated methods to draw [default: all of the run's].")
+@click.option("--trajectories", "-n", type=click.IntRange(min=1), default=3, show_default=True,
+              help="How many trajectories (the longest of the part).")
+@click.option("--part", type=click.Choice(["test", "validation"]), default="test", show_default=True)
+@click.option("--repetition", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Whose training trajectories and selected hyperparameters to re-fit with.")
+@store_option
+@plugin_option
+def plots(run_ref: str, out_dir: str, methods, trajectories: int, part: str, repetition: int, store, plugins) -> None:
+    """Draw simulated vs true trajectories of RUN, with MoE gate bands, as PNG files in DIR.
+
+    The run's methods are re-fitted on one repetition's training trajectories with the
+    hyperparameters the run selected (seed 003's Figs. 3-6 layout); a scatter per method
+    is written as well.
+    """
+    from enginebench.experiments.plots_run import plot_run
+    from enginebench.results.store import RunStore
+
+    load_plugins(plugins)
+    run = RunStore(store).get(run_ref)
+    chosen = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
+    report = plot_run(run, out_dir, chosen, trajectories=trajectories, part=part, repetition=repetition)
+    for note in report.notes:
+        click.echo(f"note: {note}", err=True)
+    for path in report.paths:
+        click.echo(str(path))

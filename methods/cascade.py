@@ -1,0 +1,484 @@
+"""Cascades (seed 003): an upstream model of an intermediate signal feeds a downstream model of the target.
+
+The turboshaft torque TRQ depends on the fuel flow WF, which is measured only in a test
+campaign (role ``internal``: in the training samples' ``Z``, never at prediction). A
+cascade fits an *upstream* model of WF on the run-time inputs, then a *downstream*
+model of TRQ whose inputs are the run-time inputs plus the intermediate column:
+
+- ``source = "model"``: the downstream is fed the upstream's prediction of WF, during
+  training (``train_on = "model"``, the seed's choice: the downstream learns to live with
+  the upstream's errors) and at prediction. This is what runs in flight: MoE-NFIR,
+  SINDy-NFIR (upstream NFIR) and MoE-MoE (upstream MoE), named downstream-upstream as in
+  the seed's Table 3.
+- ``source = "true"``: the measured intermediate is fed at prediction too. It is not
+  available at run time, so this is an *ideal* baseline, and it needs the measured WF at
+  prediction: the experiment must give WF the role ``input`` (``roles = { WF = "input" }``).
+  Predictions only ever see run-time inputs (the runner strips ``Z``), so an ideal model
+  cannot be had in an experiment where WF is ``internal``; the ideal classes below say so
+  in their error and carry ``[ideal]`` in their name so that no table shows them unlabelled.
+
+A simulating upstream (MoE, SINDy) needs the intermediate's initial value, which is not
+measured at run time. It is estimated by a ridge regression of the intermediate on the
+run-time inputs and the target at the same instant, fitted on the training rows and
+evaluated at the first row (inputs and the measured initial target y0 are what every
+simulation starts from). The same estimate is used in training and at prediction.
+
+Surrogates (option ``surrogates``, e.g. ``["NG"]``): internal signals that the seed
+reconstructs by NFIR from the run-time inputs and uses as schedulers. Each is fitted first
+(NFIR on the run-time inputs, target from ``Z``) and its reconstruction is appended as an
+input column that the upstream and the downstream models both see.
+
+Hyperparameters: the cascade's search space is the downstream's (with ``downstream_params``
+fixed), searched by the experiment's model selection. The upstream is tuned inside ``fit``
+on a holdout of the training trajectories (the last ``upstream_holdout`` fraction, scored
+by segment-averaged MAE) over its own search space with ``upstream_params`` fixed; when
+every upstream hyperparameter is fixed there is no inner search.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, ClassVar, Mapping, Sequence
+
+import numpy as np
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, grid_points
+
+SOURCES = ("model", "true")
+TRAIN_ON = ("model", "true")
+
+
+def component_class(name: str) -> type[Method]:
+    """A cascade component by method name: the built-in nfir, moe, sindy, else the registry."""
+    if name == "nfir":
+        from enginebench.methods.nfir import NFIR
+
+        return NFIR
+    if name == "moe":
+        from enginebench.methods.moe import MoE
+
+        return MoE
+    if name == "sindy":
+        from enginebench.methods.sindy import SINDy
+
+        return SINDy
+    from enginebench.methods.registry import get
+
+    return get(name)
+
+
+# -- sample plumbing ----------------------------------------------------------------------
+def with_inputs(data: Samples, names: Sequence[str], U: Sequence[np.ndarray]) -> Samples:
+    """``data`` with new raw inputs per segment (simulation mode: the features are the inputs)."""
+    segs = tuple(replace(s, U=u, X=np.ascontiguousarray(u[s.rows])) for s, u in zip(data.segments, U))
+    return replace(data, segments=segs, input_names=tuple(names), feature_names=tuple(names))
+
+
+def intermediate_values(data: Samples, name: str) -> list[np.ndarray]:
+    """The measured intermediate over every raw row of each segment, from ``Z`` or from ``U``."""
+    if name in data.internal_names:
+        j = data.internal_names.index(name)
+        missing = [s.id for s in data.segments if s.Z is None]
+        if missing:
+            raise MethodError(
+                f"cascade: the measured {name!r} is needed here but segment {missing[0]!r} carries no internal columns "
+                "(prediction samples never do)"
+            )
+        return [np.asarray(s.Z[:, j], dtype=np.float64) for s in data.segments]
+    if name in data.input_names:
+        j = data.input_names.index(name)
+        return [np.asarray(s.U[:, j], dtype=np.float64) for s in data.segments]
+    raise MethodError(
+        f"cascade: the data have no column {name!r} (inputs: {', '.join(data.input_names)}; internals: "
+        f"{', '.join(data.internal_names) or 'none'}); give {name} the role 'internal' in the experiment "
+        f"(roles = {{ {name} = \"internal\" }})"
+    )
+
+
+def target_samples(data: Samples, name: str, inputs: Sequence[str], values: Sequence[np.ndarray] | None,
+                   y0: Sequence[np.ndarray] | None) -> Samples:
+    """Samples predicting the intermediate ``name`` from ``inputs`` (targets ``values`` when given)."""
+    cols = [data.input_names.index(c) for c in inputs]
+    segs = []
+    for k, s in enumerate(data.segments):
+        u = np.ascontiguousarray(s.U[:, cols])
+        segs.append(replace(
+            s, U=u, X=np.ascontiguousarray(u[s.rows]), Z=None,
+            y=None if values is None else values[k][s.rows][:, None],
+            y0=None if y0 is None else np.atleast_1d(np.asarray(y0[k], dtype=np.float64)),
+        ))
+    return replace(data, segments=tuple(segs), input_names=tuple(inputs), feature_names=tuple(inputs),
+                   target_names=(name,), internal_names=())
+
+
+@dataclass(frozen=True)
+class Initialiser:
+    """Ridge estimate of an intermediate from [run-time inputs, target] at one instant (standardised)."""
+
+    mean: np.ndarray
+    scale: np.ndarray
+    coef: np.ndarray
+    offset: float
+
+    @classmethod
+    def fit(cls, features: np.ndarray, z: np.ndarray, ridge: float = 1e-6) -> "Initialiser":
+        mean, scale = features.mean(0), features.std(0)
+        scale = np.where(scale > 0, scale, 1.0)
+        F = (features - mean) / scale
+        zc = z - z.mean()
+        coef = np.linalg.solve(F.T @ F + ridge * len(F) * np.eye(F.shape[1]), F.T @ zc)
+        return cls(mean=mean, scale=scale, coef=coef, offset=float(z.mean()))
+
+    def __call__(self, features: np.ndarray) -> np.ndarray:
+        return ((np.atleast_2d(features) - self.mean) / self.scale) @ self.coef + self.offset
+
+
+def _initial_features(data: Samples, inputs: Sequence[str], y: Sequence[np.ndarray]) -> np.ndarray:
+    """(n_segments, n_in + k) first-row features: run-time inputs at row 0 and the measured initial target."""
+    cols = [data.input_names.index(c) for c in inputs]
+    return np.array([np.r_[s.U[0, cols], np.ravel(yy)] for s, yy in zip(data.segments, y)])
+
+
+@dataclass
+class UpstreamFitted:
+    """One fitted upstream model of one intermediate signal."""
+
+    name: str
+    method: Method
+    fitted: Any
+    inputs: tuple[str, ...]
+    params: dict[str, Any]
+    search: dict[str, Any]
+    initialiser: Initialiser
+
+
+@dataclass
+class CascadeFitted:
+    """The fitted cascade: upstream models (none when ideal) and the downstream model."""
+
+    upstreams: list[UpstreamFitted]
+    """The surrogates' NFIR models first (option ``surrogates``), then one upstream per intermediate."""
+    downstream: Method
+    fitted: Any
+    down_inputs: tuple[str, ...]
+    source: str
+    intermediates: tuple[str, ...]
+
+
+class Cascade(Method):
+    """Upstream model of an intermediate signal -> downstream model of the target (simulation mode)."""
+
+    name = "cascade"
+    family = "hybrid"
+    modes = frozenset({"simulation"})
+    summary = "cascade: an upstream model of an intermediate (e.g. WF) feeds a downstream model of the target (seed 003)"
+    preset: ClassVar[dict[str, Any]] = {}
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "upstream": "nfir",  # nfir | moe | sindy (or any registered method)
+            "downstream": "moe",  # moe | sindy | nfir
+            "intermediate": "WF",  # column name, or a list of names (one upstream model each)
+            "source": "model",  # "model": upstream's prediction; "true": measured (ideal; needs role input)
+            "train_on": "model",  # what the downstream is trained on when source = "model"
+            "upstream_options": {},
+            "downstream_options": {},
+            "upstream_params": {},  # fixed upstream hyperparameters; the rest are tuned on the holdout
+            "downstream_params": {},  # fixed downstream hyperparameters (removed from the search)
+            "upstream_holdout": 0.25,  # fraction of training trajectories that tune the upstream
+            "intermediate_sign": "+",  # moe downstream: sign of the intermediate's coefficient ("+", "-", "free")
+            "surrogates": [],  # internal columns (e.g. NG) reconstructed by NFIR and fed to upstream and downstream
+            "surrogate_options": {},
+            "surrogate_params": {},  # fixed NFIR hyperparameters of the surrogates; the rest are tuned on the holdout
+            **cls.preset,
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        o = self.options
+        if o["source"] not in SOURCES:
+            raise MethodError(f"method {self.name!r}: option source={o['source']!r}; use 'model' (upstream's simulated "
+                              "intermediate) or 'true' (measured; ideal, not available at run time)")
+        if o["train_on"] not in TRAIN_ON:
+            raise MethodError(f"method {self.name!r}: option train_on={o['train_on']!r}; use 'model' or 'true'")
+        names = [o["intermediate"]] if isinstance(o["intermediate"], str) else list(o["intermediate"])
+        if not names or not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names):
+            raise MethodError(f"method {self.name!r}: option intermediate={o['intermediate']!r} must be a column name "
+                              "or a list of distinct column names")
+        self.intermediates = tuple(names)
+        surrogates = o["surrogates"]
+        if isinstance(surrogates, str) or not all(isinstance(n, str) and n for n in surrogates) \
+                or set(surrogates) & set(names) or len(set(surrogates)) != len(surrogates):
+            raise MethodError(f"method {self.name!r}: option surrogates={surrogates!r} must be a list of distinct column "
+                              "names, none of them an intermediate")
+        self.surrogates = tuple(surrogates)
+        for key in ("upstream_options", "downstream_options", "upstream_params", "downstream_params",
+                    "surrogate_options", "surrogate_params"):
+            if not isinstance(o[key], Mapping):
+                raise MethodError(f"method {self.name!r}: option {key} must be a table of name = value, got {o[key]!r}")
+        h = o["upstream_holdout"]
+        if not (isinstance(h, (int, float)) and 0 < h < 1):
+            raise MethodError(f"method {self.name!r}: option upstream_holdout must lie strictly between 0 and 1, got {h!r}")
+        if o["intermediate_sign"] not in ("+", "-", "free"):
+            raise MethodError(f"method {self.name!r}: option intermediate_sign={o['intermediate_sign']!r}; use '+', '-' or 'free'")
+        self.up_cls = component_class(o["upstream"]) if o["source"] == "model" else None
+        self.down_cls = component_class(o["downstream"])
+        for role, cls in (("upstream", self.up_cls), ("downstream", self.down_cls)):
+            if cls is not None and "simulation" not in cls.modes:
+                raise MethodError(f"method {self.name!r}: {role} method {cls.name!r} has no simulation mode")
+        if self.up_cls is not None:
+            self.up_cls(**o["upstream_options"])  # fail early on bad options
+        if self.surrogates:
+            component_class("nfir")(**o["surrogate_options"])
+        self._downstream(("y",), "WF")  # likewise
+
+    # -- components -----------------------------------------------------------------------
+    def _downstream(self, targets: Sequence[str], intermediate: str) -> Method:
+        """The downstream method; a MoE gets the seed's signs (own state -, intermediate +) unless told otherwise."""
+        opts = dict(self.options["downstream_options"])
+        if self.options["downstream"] == "moe" and "signs" not in opts and self.options["intermediate_sign"] != "free":
+            opts["signs"] = {**{t: "-" for t in targets}, **{n: self.options["intermediate_sign"] for n in self.intermediates}}
+        return self.down_cls(**opts)
+
+    def _down_inputs(self, data: Samples) -> tuple[str, ...]:
+        """Downstream inputs: run-time inputs other than the intermediates, then the intermediates."""
+        return tuple(c for c in data.input_names if c not in self.intermediates) + self.intermediates
+
+    def _check(self, data: Samples) -> None:
+        self.check_mode(data.mode)
+        if self.options["source"] == "true":
+            absent = [n for n in self.intermediates if n not in data.input_names]
+            if absent:
+                role = "internal" if absent[0] in data.internal_names else "not a run-time input"
+                raise MethodError(
+                    f"method {self.name!r} feeds the measured {absent[0]} at prediction (ideal baseline, not available "
+                    f"at run time), so {absent[0]} must be a run-time input of the experiment; here it is {role}: "
+                    f"set roles = {{ {absent[0]} = \"input\" }} in an experiment of its own"
+                )
+        clash = [n for n in self.intermediates if n in data.target_names]
+        if clash:
+            raise MethodError(f"method {self.name!r}: the intermediate {clash[0]!r} is also the target; "
+                              "cascade an intermediate into a different target")
+
+    def _fit_upstream(self, train: Samples, name: str, rng: np.random.Generator, surrogate: bool = False) -> UpstreamFitted:
+        """Fit the model of one intermediate (or, with ``surrogate``, the NFIR of one surrogate) on ``train``."""
+        if surrogate:
+            cls, options, fixed = component_class("nfir"), "surrogate_options", "surrogate_params"
+            exclude = set(self.intermediates) | set(self.surrogates)
+        else:
+            cls, options, fixed, exclude = self.up_cls, "upstream_options", "upstream_params", set(self.intermediates)
+        inputs = tuple(c for c in train.input_names if c not in exclude)
+        if not inputs:
+            raise MethodError(f"method {self.name!r}: no run-time input left to predict {name!r} from")
+        truth = intermediate_values(train, name)
+        init = Initialiser.fit(
+            np.hstack([np.concatenate([s.U[s.rows][:, [train.input_names.index(c) for c in inputs]] for s in train.segments]),
+                       train.y]),
+            np.concatenate([z[s.rows] for z, s in zip(truth, train.segments)]),
+        )
+        z0 = init(_initial_features(train, inputs, [s.y0 if s.y0 is not None else s.y[0] for s in train.segments]))
+        up_train = target_samples(train, name, inputs, truth, list(z0))
+        method = cls(**self.options[options])
+        space = dict(method.search_space(up_train))
+        space.update({k: np.array([v]) for k, v in self.options[fixed].items()})
+        grid = grid_points(space)
+        params, search = (grid[0] if grid else {}), {"grid_size": len(grid)}
+        n_seg = len(up_train.segments)
+        if len(grid) > 1 and n_seg >= 2:
+            n_hold = min(n_seg - 1, max(1, math.ceil(self.options["upstream_holdout"] * n_seg)))
+            edges = np.r_[0, np.cumsum([len(s) for s in up_train.segments])]
+            fit_part = up_train.take(np.arange(edges[n_seg - n_hold]))
+            hold = up_train.take(np.arange(edges[n_seg - n_hold], edges[-1]))
+            preds = method.predict_grid(fit_part, hold.without_targets(), grid, rng)
+            score = segment_mae(preds, hold)
+            best = int(np.argmin(score))
+            params = grid[best]
+            search.update(holdout_segments=n_hold, best_score=float(score[best]))
+        fitted = method.fit(up_train, params, rng)
+        return UpstreamFitted(name=name, method=method, fitted=fitted, inputs=inputs,
+                              params={k: _plain(v) for k, v in params.items()}, search=search, initialiser=init)
+
+    def _upstream_signals(self, ups: list[UpstreamFitted], data: Samples) -> tuple[list[list[np.ndarray]], np.ndarray]:
+        """Each upstream's prediction of its intermediate over every raw row of every segment, and diverged flags."""
+        full = replace(data, segments=tuple(replace(s, rows=np.arange(len(s.U)), y=None, Z=None) for s in data.segments))
+        y0 = [s.y0 if s.y0 is not None else (s.y[0] if s.y is not None else None) for s in data.segments]
+        if any(v is None for v in y0):
+            raise MethodError(f"method {self.name!r}: every segment needs its measured initial target y0 (simulation mode)")
+        signals, diverged = [], np.zeros(len(data.segments), dtype=bool)
+        for up in ups:
+            z0 = up.initialiser(_initial_features(full, up.inputs, y0))
+            part = target_samples(full, up.name, up.inputs, None, list(z0))
+            preds = up.method.predict(up.fitted, part)
+            diverged |= np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool)))
+            signals.append([np.asarray(p, dtype=np.float64).reshape(len(s.U), -1)[:, 0] for p, s in zip(preds, full.segments)])
+        return signals, diverged
+
+    def _down_samples(self, data: Samples, signals: list[list[np.ndarray]]) -> Samples:
+        """``data`` with the intermediates (``signals[i][segment]``) as the last input columns."""
+        names = self._down_inputs(data)
+        keep = [data.input_names.index(c) for c in names[: len(names) - len(self.intermediates)]]
+        U = [np.column_stack([s.U[:, keep]] + [sig[k] for sig in signals]) for k, s in enumerate(data.segments)]
+        return with_inputs(data, names, U)
+
+    def _with_surrogates(self, data: Samples, surs: list[UpstreamFitted]) -> Samples:
+        """``data`` with each surrogate's NFIR reconstruction appended as a run-time input column."""
+        if not surs:
+            return data
+        signals, _ = self._upstream_signals(surs, data)
+        U = [np.column_stack([s.U] + [sig[k] for sig in signals]) for k, s in enumerate(data.segments)]
+        return with_inputs(data, data.input_names + tuple(u.name for u in surs), U)
+
+    def _prepare_train(self, train: Samples, rng: np.random.Generator) -> tuple[list[UpstreamFitted], Samples]:
+        """(surrogate and upstream models, downstream training samples)."""
+        self._check(train)
+        surs = [self._fit_upstream(train, n, rng, surrogate=True) for n in self.surrogates]
+        train = self._with_surrogates(train, surs)
+        if self.options["source"] == "true":
+            return surs, self._down_samples(train, [intermediate_values(train, n) for n in self.intermediates])
+        ups = [self._fit_upstream(train, n, rng) for n in self.intermediates]
+        if self.options["train_on"] == "true":
+            signals = [intermediate_values(train, n) for n in self.intermediates]
+        else:
+            signals, _ = self._upstream_signals(ups, train)
+        return surs + ups, self._down_samples(train, signals)
+
+    def _prepare_eval(self, models: list[UpstreamFitted], data: Samples) -> tuple[Samples, np.ndarray]:
+        self._check(data)
+        surs, ups = models[: len(self.surrogates)], models[len(self.surrogates):]
+        data = self._with_surrogates(data, surs)
+        if self.options["source"] == "true":
+            return self._down_samples(data, [intermediate_values(data, n) for n in self.intermediates]), \
+                np.zeros(len(data.segments), dtype=bool)
+        signals, diverged = self._upstream_signals(ups, data)
+        return self._down_samples(data, signals), diverged
+
+    # -- Method -----------------------------------------------------------------------------
+    def search_space(self, data: Samples) -> SearchSpace:
+        space = dict(self._downstream(data.target_names, self.intermediates[0]).search_space(data))
+        for k, v in self.options["downstream_params"].items():
+            space[k] = np.array([v])
+        return space
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> CascadeFitted:
+        ups, down_train = self._prepare_train(train, rng)
+        down = self._downstream(train.target_names, self.intermediates[0])
+        fitted = down.fit(down_train, {**dict(params)}, rng)
+        return CascadeFitted(upstreams=ups, downstream=down, fitted=fitted, down_inputs=down_train.input_names,
+                             source=self.options["source"], intermediates=self.intermediates)
+
+    def predict(self, fitted: CascadeFitted, data: Samples) -> SegmentPredictions:
+        down_data, up_diverged = self._prepare_eval(fitted.upstreams, data)
+        preds = fitted.downstream.predict(fitted.fitted, down_data)
+        diverged = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool))) | up_diverged
+        return SegmentPredictions(list(preds), diverged)
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """The upstream is fitted once; the downstream's own ``predict_grid`` covers the grid."""
+        ups, down_train = self._prepare_train(train, rng)
+        down_data, _ = self._prepare_eval(ups, data)
+        down = self._downstream(train.target_names, self.intermediates[0])
+        return down.predict_grid(down_train, down_data, grid, rng)
+
+    def describe(self, fitted: CascadeFitted) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "surrogates": [
+                {"method": "nfir", "signal": u.name, "inputs": list(u.inputs), "params": u.params, "search": u.search}
+                for u in fitted.upstreams[: len(self.surrogates)]
+            ],
+            "source": fitted.source,
+            "available_at_run_time": fitted.source == "model",
+            "intermediates": list(fitted.intermediates),
+            "downstream": {"method": fitted.downstream.name, "inputs": list(fitted.down_inputs),
+                           **fitted.downstream.describe(fitted.fitted)},
+        }
+        if fitted.source == "true":
+            out["note"] = ("ideal baseline: the measured " + ", ".join(fitted.intermediates)
+                           + " is fed at prediction; not available at run time")
+        else:
+            out["train_on"] = self.options["train_on"]
+            out["upstream"] = [
+                {"method": u.method.name, "intermediate": u.name, "inputs": list(u.inputs), "params": u.params,
+                 "search": u.search, **u.method.describe(u.fitted)}
+                for u in fitted.upstreams[len(self.surrogates):]
+            ]
+        return out
+
+    # -- for plots ----------------------------------------------------------------------------
+    def intermediate_predictions(self, fitted: CascadeFitted, data: Samples) -> dict[str, list[np.ndarray]]:
+        """Each intermediate as fed to the downstream, per segment over its evaluated rows."""
+        down_data, _ = self._prepare_eval(fitted.upstreams, data)
+        out = {}
+        for n in self.surrogates + fitted.intermediates:
+            j = down_data.input_names.index(n)
+            out[n] = [s.U[s.rows, j] for s in down_data.segments]
+        return out
+
+    def downstream_view(self, fitted: CascadeFitted, data: Samples) -> tuple[Method, Any, Samples]:
+        """(downstream method, its fitted model, the samples it sees): e.g. for MoE gate weights."""
+        down_data, _ = self._prepare_eval(fitted.upstreams, data)
+        return fitted.downstream, fitted.fitted, down_data
+
+
+def segment_mae(predictions: np.ndarray, data: Samples) -> np.ndarray:
+    """Segment-averaged MAE of every grid point, (n_grid, n_rows, k) -> (n_grid,); non-finite -> inf."""
+    err = np.abs(predictions - data.y[None])
+    edges = np.r_[0, np.cumsum([len(s) for s in data.segments])]
+    per_seg = np.stack([err[:, a:b].mean(axis=(1, 2)) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+    score = per_seg.mean(axis=1)
+    return np.where(np.isfinite(score), score, np.inf)
+
+
+def _plain(v: Any) -> Any:
+    return v.item() if hasattr(v, "item") else v
+
+
+# -- the seed's Table 3 rows ---------------------------------------------------------------------
+class MoENFIR(Cascade):
+    """MoE for the target fed by the NFIR-reconstructed intermediate (seed 003: MoE-NFIR)."""
+
+    name = "moe-nfir"
+    family = "hybrid"
+    summary = "MoE of the target fed by an NFIR reconstruction of the intermediate (e.g. WF -> TRQ)"
+    preset = {"upstream": "nfir", "downstream": "moe", "source": "model"}
+
+
+class SINDyNFIR(Cascade):
+    """SINDy for the target fed by the NFIR-reconstructed intermediate (seed 003: SINDy-NFIR)."""
+
+    name = "sindy-nfir"
+    family = "data-driven"
+    summary = "SINDy of the target fed by an NFIR reconstruction of the intermediate"
+    preset = {"upstream": "nfir", "downstream": "sindy", "source": "model"}
+
+
+class MoEMoE(Cascade):
+    """MoE for the target fed by the upstream MoE's simulated intermediate (seed 003: MoE-MoE)."""
+
+    name = "moe-moe"
+    family = "hybrid"
+    summary = "MoE of the target fed by the simulated intermediate of an upstream MoE"
+    preset = {"upstream": "moe", "downstream": "moe", "source": "model"}
+
+
+class MoEIdeal(Cascade):
+    """MoE fed the measured intermediate at prediction: an ideal baseline, not available at run time."""
+
+    name = "moe[ideal]"
+    family = "hybrid"
+    summary = "IDEAL baseline: MoE fed the measured intermediate (needs roles = { WF = 'input' }; not available at run time)"
+    preset = {"downstream": "moe", "source": "true"}
+
+
+class SINDyIdeal(Cascade):
+    """SINDy fed the measured intermediate at prediction: an ideal baseline, not available at run time."""
+
+    name = "sindy[ideal]"
+    family = "data-driven"
+    summary = "IDEAL baseline: SINDy fed the measured intermediate (needs roles = { WF = 'input' }; not available at run time)"
+    preset = {"downstream": "sindy", "source": "true"}
