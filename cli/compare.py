@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from enginebench.cli.options import store_option
+from enginebench.cli.options import emit, store_option
 
 
 def _metric_list(text: str | None) -> list[str] | None:
@@ -43,12 +43,7 @@ def compare(run_a: str, run_b: str, metrics: str, fmt: str, interval, output, st
         text = cmp.table.to_csv(index=False)
     else:
         text = comparison_table(cmp) + "\n" + "\n".join(statements(cmp)) + "\n"
-    if output:
-        with open(output, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        click.echo(f"wrote {output}", err=True)
-    else:
-        click.echo(text, nl=False)
+    emit(text, output)
 
 
 @click.command()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from enginebench.cli.options import load_plugins, plugin_option, store_option
+from enginebench.cli.options import emit, load_plugins, plugin_option, store_option
 
 
 @click.command()
@@ -56,12 +56,7 @@ def layout(run_refs: tuple[str, ...], layout: str, literature: bool, fmt: str, o
     else:
         table = layouts.seed000_table(metrics, literature=literature)
         text = table.to_csv(index=False) if fmt == "csv" else layouts.seed000_markdown(table, dataset=dataset)
-    if output:
-        with open(output, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        click.echo(f"wrote {output}", err=True)
-    else:
-        click.echo(text, nl=False)
+    emit(text, output)
 
 
 @click.command()

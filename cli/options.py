@@ -19,3 +19,13 @@ def load_plugins(plugins: tuple[str, ...]) -> None:
 
     for path in plugins:
         load_plugin_file(path)
+
+
+def emit(text: str, output: str | None) -> None:
+    """Write ``text`` to ``output`` (saying so on stderr) or to standard output."""
+    if output:
+        with open(output, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        click.echo(f"wrote {output}", err=True)
+    else:
+        click.echo(text, nl=False)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 from rich.console import Console
 
-from enginebench.cli.options import store_option
+from enginebench.cli.options import emit, store_option
 
 
 @click.command()
@@ -45,12 +45,7 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         "csv": lambda: tables.to_csv(summary),
         "html": lambda: tables.to_html(summary, cols),
     }[fmt]()
-    if output:
-        with open(output, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        click.echo(f"wrote {output}", err=True)
-    else:
-        click.echo(text, nl=False)
+    emit(text, output)
 
 
 def paired_lines(tests, metric: str) -> str:
