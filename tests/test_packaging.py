@@ -28,7 +28,9 @@ def test_the_wheel_puts_everything_under_enginebench(tmp_path):
     assert tops == {"enginebench"}, sorted(tops)
     assert not tops & FORBIDDEN_TOP_LEVEL
     assert "enginebench/datasets/samples.py" in names and "enginebench/cli/main.py" in names
-    assert "enginebench/experiments/builtin/gas-turbine-nox.toml" in names
+    for data in ("experiments/builtin/gas-turbine-nox.toml", "results/published/gas-turbine-nox-quick.json",
+                 "results/published/literature-seed003.csv", "datasets/marine_diesel/fat_seed000.csv"):
+        assert f"enginebench/{data}" in names, data
 
 
 def test_subpackages_resolve_inside_enginebench():
