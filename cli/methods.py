@@ -41,6 +41,7 @@ def methods_show(name: str, plugins) -> None:
         click.echo("\n" + doc)
     opts = cls.default_options()
     if opts:
-        click.echo("\noptions (set them in the experiment's [methods." + cls.name + "] table):")
+        key = cls.name if cls.name.replace("-", "").replace("_", "").isalnum() else f'"{cls.name}"'
+        click.echo(f"\noptions (set them in the experiment's [methods.{key}] table):")
         for k, v in opts.items():
             click.echo(f"  {k} = {v!r}")
