@@ -136,28 +136,36 @@ def get_builtin(name: str) -> Builtin:
     return BUILTINS[name]
 
 
-def load(ref: str | Path, *, variant: str = "", columns: list[str] | None = None) -> Dataset:
-    """Load a dataset by built-in name, Parquet file or TOML import spec."""
-    from enginebench.datasets.io import read_dataset
-
+def locate(ref: str | Path, *, variant: str = "") -> Path | None:
+    """The Parquet file behind a dataset reference (generating a built-in on first use); None for a TOML import spec."""
     path = Path(ref)
     if path.suffix == ".parquet":
         if not path.is_file():
             raise DataError(f"{path}: dataset file not found")
-        return read_dataset(path, columns=columns)
+        return path
     if path.suffix == ".toml":
-        from enginebench.datasets.importer import import_table
-
-        return import_table(path)
+        return None
     builtin = get_builtin(str(ref))
     if builtin.generator is not None:
         size, _, seed = (variant or builtin.default_size).partition("-seed")
-        return read_dataset(generate_builtin(builtin.name, size, int(seed or 0)), columns=columns)
+        return generate_builtin(builtin.name, size, int(seed or 0))
     cached = cached_path(builtin.name, variant)
     if cached.is_file():
-        return read_dataset(cached, columns=columns)
+        return cached
     if builtin.importer is not None:
         raise DataError(
             f"dataset {builtin.name!r} is not imported yet (looked in {cached}); run: {builtin.notes.get('import', 'enginebench datasets import ' + builtin.name + ' --from DIR')}"
         )
     raise DataError(f"dataset {builtin.name!r} is not generated yet; run: enginebench datasets generate {builtin.name}")
+
+
+def load(ref: str | Path, *, variant: str = "", columns: list[str] | None = None) -> Dataset:
+    """Load a dataset by built-in name, Parquet file or TOML import spec (``columns``: read only those)."""
+    from enginebench.datasets.io import read_dataset
+
+    path = locate(ref, variant=variant)
+    if path is None:
+        from enginebench.datasets.importer import import_table
+
+        return import_table(Path(ref))
+    return read_dataset(path, columns=columns)

@@ -8,10 +8,9 @@ is not in its inputs.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from enginebench.datasets.dataset import TIME, Dataset
 from enginebench.errors import DataError
@@ -125,6 +124,19 @@ class Samples:
     def segment_ids(self) -> list[str]:
         return [s.id for s in self.segments]
 
+    @property
+    def segment_sizes(self) -> np.ndarray:
+        """Rows per segment, in order."""
+        return np.array([len(s) for s in self.segments], dtype=np.int64)
+
+    def batches(self, max_rows: int) -> Iterator["Samples"]:
+        """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks)."""
+        return iter_batches(self, max_rows)
+
+    def materialize(self) -> "Samples":
+        """These samples (a ``SamplePool`` builds its rows here)."""
+        return self
+
 
 def lagged_feature_names(inputs: Sequence[str], outputs: Sequence[str], lags: int) -> list[str]:
     """Names of the window features: ``x[t]``, ``x[t-1]``... and ``y[t-1]``...``y[t-lags]``."""
@@ -136,10 +148,16 @@ def lagged_feature_names(inputs: Sequence[str], outputs: Sequence[str], lags: in
     return names
 
 
-def _lag_block(values: np.ndarray, lags: int) -> np.ndarray:
-    """(N, c) -> (N - lags, c * (lags + 1)) with, per column, lag 0, 1, ..., lags."""
-    win = sliding_window_view(values, lags + 1, axis=0)  # (N - lags, c, lags + 1), oldest first
-    return win[:, :, ::-1].reshape(win.shape[0], -1)
+def check_targets(ds: Dataset, targets: Sequence[str]) -> list[str]:
+    """``targets`` as a list, each checked to be an 'output' column of ``ds``."""
+    targets = list(targets)
+    if not targets:
+        raise DataError("no target given")
+    for name in targets:
+        col = ds.schema[name]
+        if col.role != "output":
+            raise DataError(f"column {name!r} has role {col.role!r}; only 'output' columns can be targets")
+    return targets
 
 
 def make_samples(
@@ -157,61 +175,167 @@ def make_samples(
     [t - Delta, t] and measured outputs over [t - Delta, t - dt]. The first Delta/dt rows
     of each segment, whose window is incomplete, are not evaluated.
     """
-    if mode not in MODES:
-        raise DataError(f"unknown evaluation mode {mode!r}; use one of {', '.join(MODES)}")
-    targets = list(targets)
-    if not targets:
-        raise DataError("no target given")
-    for name in targets:
-        col = ds.schema[name]
-        if col.role != "output":
-            raise DataError(f"column {name!r} has role {col.role!r}; only 'output' columns can be targets")
-    inputs = list(ds.schema.inputs if inputs is None else inputs)
-    for name in inputs:
-        if ds.schema[name].role != "input":
-            raise DataError(f"column {name!r} has role {ds.schema[name].role!r}; only 'input' columns are run-time inputs")
-    if window < 0:
-        raise DataError(f"window must be >= 0 seconds, got {window}")
-    lags = int(round(window / ds.dt))
-    if abs(lags * ds.dt - window) > 1e-9 * max(1.0, window):
-        raise DataError(f"window {window} s is not a multiple of the sample period {ds.dt} s")
-    if mode != "window" and lags:
-        raise DataError(f"a window of {window} s needs mode 'window' (mode is {mode!r})")
-    internals = ds.schema.internals
+    targets = check_targets(ds, targets)
+    raw = RawSegments.from_dataset(ds, inputs=inputs, outputs=targets)
+    return SamplePool(raw, targets, mode, window, physical_model=physical_model).materialize()
 
-    if mode == "window":
-        feature_names = lagged_feature_names(inputs, targets, lags)
-    else:
-        feature_names = list(inputs)
 
-    segs = []
-    for sid, part in ds.segments():
-        U = part[inputs].to_numpy(dtype=np.float64)
-        Y = part[targets].to_numpy(dtype=np.float64)
-        t = part[TIME].to_numpy(dtype=np.float64)
-        Z = part[internals].to_numpy(dtype=np.float64) if internals else None
-        n = len(part)
-        if n <= lags:
-            raise DataError(
-                f"dataset {ds.name!r}, segment {sid!r}: {n} rows, shorter than the window of "
-                f"{lags + 1} samples ({window} s); drop short segments or use a shorter window"
-            )
-        if mode == "window" and lags:
-            X = _lag_block(U, lags)
-            X = np.hstack([X, _lag_block(Y[:-1], lags - 1)]) if lags else X
-            rows = np.arange(lags, n)
-        else:
-            X = U
-            rows = np.arange(n)
-        segs.append(
-            SegmentSamples(
-                id=sid, X=np.ascontiguousarray(X), rows=rows, U=U, t=t, y=Y[rows],
-                y0=Y[0] if mode == "simulation" else None, Z=Z,
-            )
+@dataclass(frozen=True)
+class SegmentArrays:
+    """The raw arrays of one segment, read from the frame once and shared by every pool."""
+
+    id: str
+    U: np.ndarray
+    """Run-time inputs over the whole segment, (n, c)."""
+    Y: np.ndarray
+    """Measured outputs over the whole segment, (n, k_all), columns in ``RawSegments.outputs`` order."""
+    t: np.ndarray
+    Z: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class RawSegments:
+    """Per-segment arrays of one dataset part, built once and shared by all (target, window) pools.
+
+    Sharing matters at full size: one copy of the inputs serves every target and window,
+    and window features are only ever built for the rows a job asks for.
+    """
+
+    segments: tuple[SegmentArrays, ...]
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    internals: tuple[str, ...]
+    dt: float
+    units: dict[str, str]
+    dataset: str
+
+    @classmethod
+    def from_dataset(cls, ds: Dataset, *, inputs: Sequence[str] | None = None, outputs: Sequence[str] | None = None,
+                     internals: Sequence[str] | None = None) -> "RawSegments":
+        """Read ``inputs``, ``outputs`` and ``internals`` (default: the schema's) of every segment of ``ds``."""
+        inputs = list(ds.schema.inputs if inputs is None else inputs)
+        outputs = list(ds.schema.outputs if outputs is None else outputs)
+        internals = list(ds.schema.internals if internals is None else internals)
+        for name in inputs:
+            if ds.schema[name].role != "input":
+                raise DataError(f"column {name!r} has role {ds.schema[name].role!r}; only 'input' columns are run-time inputs")
+        segs = []
+        for sid, part in ds.segments():
+            segs.append(SegmentArrays(
+                id=sid,
+                U=part[inputs].to_numpy(dtype=np.float64),
+                Y=part[outputs].to_numpy(dtype=np.float64),
+                t=part[TIME].to_numpy(dtype=np.float64),
+                Z=part[internals].to_numpy(dtype=np.float64) if internals else None,
+            ))
+        return cls(segments=tuple(segs), inputs=tuple(inputs), outputs=tuple(outputs), internals=tuple(internals),
+                   dt=ds.dt, units={c.name: c.unit for c in ds.schema.columns}, dataset=ds.name)
+
+
+class SamplePool:
+    """The samples of one (targets, mode, window) setting, with features built only on demand.
+
+    Behaves like the ``Samples`` it stands for (``len``, ``segment_sizes``, ``take``,
+    ``batches``) but holds only the raw segment arrays: ``take`` builds the feature rows
+    of just the rows asked for, so a 1,000-row training subsample of a 4-million-row
+    pool never materialises the pool's lagged features.
+    """
+
+    def __init__(self, raw: RawSegments, targets: Sequence[str], mode: str = "static", window: float = 0.0, *,
+                 physical_model: Any = None) -> None:
+        if mode not in MODES:
+            raise DataError(f"unknown evaluation mode {mode!r}; use one of {', '.join(MODES)}")
+        targets = list(targets)
+        if not targets:
+            raise DataError("no target given")
+        for name in targets:
+            if name not in raw.outputs:
+                raise DataError(f"column {name!r} is not an 'output' column; only 'output' columns can be targets "
+                                f"(outputs: {', '.join(raw.outputs) or 'none'})")
+        if window < 0:
+            raise DataError(f"window must be >= 0 seconds, got {window}")
+        lags = int(round(window / raw.dt))
+        if abs(lags * raw.dt - window) > 1e-9 * max(1.0, window):
+            raise DataError(f"window {window} s is not a multiple of the sample period {raw.dt} s")
+        if mode != "window" and lags:
+            raise DataError(f"a window of {window} s needs mode 'window' (mode is {mode!r})")
+        for seg in raw.segments:
+            if len(seg.t) <= lags:
+                raise DataError(
+                    f"dataset {raw.dataset!r}, segment {seg.id!r}: {len(seg.t)} rows, shorter than the window of "
+                    f"{lags + 1} samples ({window} s); drop short segments or use a shorter window"
+                )
+        self.raw = raw
+        self.target_names = tuple(targets)
+        self.mode = mode
+        self.window = float(window)
+        self.lags = lags
+        self.physical_model = physical_model
+        self._target_cols = [raw.outputs.index(t) for t in targets]
+        self.segment_sizes = np.array([len(s.t) - lags for s in raw.segments], dtype=np.int64)
+        self._offsets = np.r_[0, np.cumsum(self.segment_sizes)]
+        names = lagged_feature_names(raw.inputs, targets, lags) if mode == "window" else list(raw.inputs)
+        self.feature_names = tuple(names)
+
+    def __len__(self) -> int:
+        return int(self._offsets[-1])
+
+    def segment_ids(self) -> list[str]:
+        return [s.id for s in self.raw.segments]
+
+    def _features(self, seg: SegmentArrays, Y: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Feature rows at raw positions ``rows``: inputs at lags 0..L, outputs at lags 1..L (window mode)."""
+        L = self.lags
+        if L == 0:
+            return seg.U[rows]
+        past = rows[:, None] - np.arange(L + 1)[None, :]                     # (m, L + 1): t, t-1, ..., t-L
+        X_in = seg.U[past].transpose(0, 2, 1).reshape(len(rows), -1)        # per input: lag 0..L
+        X_out = Y[past[:, 1:]].transpose(0, 2, 1).reshape(len(rows), -1)    # per target: lag 1..L, never lag 0
+        return np.hstack([X_in, X_out])
+
+    def _segment(self, k: int, local: np.ndarray | None) -> SegmentSamples:
+        seg = self.raw.segments[k]
+        Y = seg.Y[:, self._target_cols]
+        n = len(seg.t)
+        rows = np.arange(self.lags, n) if local is None else np.asarray(local, dtype=np.int64) + self.lags
+        whole = local is None and self.lags == 0
+        X = seg.U if whole else np.ascontiguousarray(self._features(seg, Y, rows))
+        return SegmentSamples(id=seg.id, X=X, rows=rows, U=seg.U, t=seg.t, y=Y[rows],
+                              y0=Y[0] if self.mode == "simulation" else None, Z=seg.Z)
+
+    def _samples(self, segments: Sequence[SegmentSamples]) -> Samples:
+        raw = self.raw
+        return Samples(
+            segments=tuple(segments), mode=self.mode, window=self.window, dt=raw.dt,
+            feature_names=self.feature_names, input_names=raw.inputs, target_names=self.target_names,
+            internal_names=raw.internals, units=dict(raw.units), physical_model=self.physical_model,
         )
-    units = {c.name: c.unit for c in ds.schema.columns}
-    return Samples(
-        segments=tuple(segs), mode=mode, window=float(window), dt=ds.dt,
-        feature_names=tuple(feature_names), input_names=tuple(inputs), target_names=tuple(targets),
-        internal_names=tuple(internals), units=units, physical_model=physical_model,
-    )
+
+    def materialize(self) -> Samples:
+        """Every row's samples (what ``make_samples`` returns)."""
+        return self._samples([self._segment(k, None) for k in range(len(self.raw.segments))])
+
+    def take(self, index: np.ndarray) -> Samples:
+        """Rows at global positions ``index`` (repeats allowed), grouped by segment in segment order."""
+        index = np.asarray(index, dtype=np.int64)
+        if index.size and (index.min() < 0 or index.max() >= len(self)):
+            raise IndexError(f"row index out of range 0..{len(self) - 1}")
+        seg_of = np.searchsorted(self._offsets, index, side="right") - 1
+        order = np.argsort(seg_of, kind="stable")
+        index, seg_of = index[order], seg_of[order]
+        return self._samples([self._segment(int(k), index[seg_of == k] - self._offsets[k]) for k in np.unique(seg_of)])
+
+    def batches(self, max_rows: int) -> Iterator[Samples]:
+        """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks)."""
+        return iter_batches(self, max_rows)
+
+
+def iter_batches(data: "Samples | SamplePool", max_rows: int) -> Iterator[Samples]:
+    """``data`` in consecutive row blocks of at most ``max_rows`` rows (one block if it is small)."""
+    n = len(data)
+    step = max(1, int(max_rows))
+    if n <= step and isinstance(data, Samples):
+        yield data
+        return
+    for start in range(0, n, step):
+        yield data.take(np.arange(start, min(n, start + step)))

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from enginebench.datasets.samples import Samples
+from enginebench.datasets.samples import SamplePool, Samples
 from enginebench.errors import EngineBenchError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
@@ -43,8 +43,8 @@ class Job:
 class Problem:
     """The samples of one (target, window, split): the training pool and the evaluated parts."""
 
-    train: Samples
-    parts: dict[str, Samples]
+    train: Samples | SamplePool
+    parts: dict[str, Samples | SamplePool]
 
 
 @dataclass
@@ -79,6 +79,38 @@ def subsample_segments(sizes: np.ndarray, size: int, rng: np.random.Generator) -
     return np.concatenate([np.arange(edges[k], edges[k + 1]) for k in np.sort(keep)])
 
 
+PREDICT_BATCH_ROWS = 50_000
+"""Rows predicted at a time in static and window modes: bounds the feature and kernel blocks of a job."""
+
+
+def predict_part(method: Method, fitted: Any, part: "Samples | SamplePool", mode: str
+                 ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """(truth, predictions, diverged flags) per segment of an evaluated part.
+
+    Simulating methods see whole trajectories at once; in static and window modes the
+    part is predicted in row blocks of ``PREDICT_BATCH_ROWS`` (features are built per
+    block), so a million-row test period never sits in memory as one feature matrix.
+    """
+    if mode == "simulation":
+        data = part.materialize()
+        preds = method.predict(fitted, data.without_targets())
+        guess = [np.asarray(p, dtype=float).reshape(len(s), -1) for p, s in zip(preds, data.segments)]
+        diverged = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool)))
+        return [s.y for s in data.segments], guess, diverged
+    truth, guess = [], []
+    for batch in part.batches(PREDICT_BATCH_ROWS):
+        preds = method.predict(fitted, batch.without_targets())
+        k = len(batch.target_names)
+        guess.append(np.concatenate([np.asarray(p, dtype=float).reshape(len(s), k) for p, s in zip(preds, batch.segments)])
+                     if batch.segments else np.empty((0, k)))
+        truth.append(batch.y)
+    if not truth:
+        return [], [], np.zeros(0, dtype=bool)
+    cuts = np.cumsum(part.segment_sizes)[:-1]
+    return (np.split(np.concatenate(truth), cuts), np.split(np.concatenate(guess), cuts),
+            np.zeros(len(part.segment_sizes), dtype=bool))
+
+
 def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Run one job; failures become a 'failed' record with the reason, never an exception."""
     spec = ctx.spec
@@ -92,13 +124,13 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     try:
         sub_rng = np.random.default_rng([spec.seed, job.repetition, stable_int(job.split)])
         if spec.mode == "simulation":  # a trajectory is only usable whole
-            sizes = np.array([len(s) for s in problem.train.segments])
-            train = problem.train.take(subsample_segments(sizes, spec.train_size, sub_rng))
+            train = problem.train.take(subsample_segments(problem.train.segment_sizes, spec.train_size, sub_rng))
         else:
             train = problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
         rng = np.random.default_rng([spec.seed, job.repetition, stable_int(job.method)])
         t0 = time.perf_counter()
-        params, search = select(method, train, spec.selection, rng, problem.parts.get("validation"))
+        validation = problem.parts["validation"].materialize() if "validation" in problem.parts else None
+        params, search = select(method, train, spec.selection, rng, validation)
         timings["select_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         fitted = method.fit(train, params, rng)
@@ -108,13 +140,12 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         meta.update(params=params, search=search, describe=method.describe(fitted), n_train=len(train))
         for part_name, part in problem.parts.items():
             t0 = time.perf_counter()
-            preds = method.predict(fitted, part.without_targets())
+            truth_all, guess_all, diverged = predict_part(method, fitted, part, spec.mode)
             timings[f"predict_{part_name}_s"] = time.perf_counter() - t0
-            diverged = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool)))
             for k, name in enumerate(part.target_names):
-                truth = [s.y[:, k] for s in part.segments]
-                guess = [np.asarray(p, dtype=float).reshape(len(s), -1)[:, k] for p, s in zip(preds, part.segments)]
-                bad = [s.id for s, g in zip(part.segments, guess) if not np.all(np.isfinite(g))]
+                truth = [y[:, k] for y in truth_all]
+                guess = [g[:, k] for g in guess_all]
+                bad = [sid for sid, g in zip(part.segment_ids(), guess) if not np.all(np.isfinite(g))]
                 if bad:
                     raise FloatingPointError(
                         f"{job.method} returned non-finite predictions for {len(bad)} segment(s) of the {part_name} part "

@@ -83,10 +83,9 @@ def plot_run(
         if part not in problem.parts:
             raise MethodError(f"run {run.id}: split {split!r} has no {part!r} part; it has {', '.join(problem.parts)}")
         sub_rng = np.random.default_rng([spec.seed, repetition, stable_int(split)])
-        sizes = np.array([len(s) for s in problem.train.segments])
-        train = problem.train.take(subsample_segments(sizes, spec.train_size, sub_rng))
+        train = problem.train.take(subsample_segments(problem.train.segment_sizes, spec.train_size, sub_rng))
         scale = float(np.mean(np.abs(train.y)))
-        data = problem.parts[part]
+        data = problem.parts[part].materialize()
         order = np.argsort([-len(s) for s in data.segments], kind="stable")[:trajectories]
         shown = data.take(np.concatenate([_segment_rows(data, int(k)) for k in sorted(order)]))
         sims: dict[str, list[np.ndarray]] = {}

@@ -13,9 +13,12 @@ from dataclasses import dataclass
 from typing import Callable
 
 from enginebench.datasets import catalog
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.dataset import Dataset
+from enginebench.datasets.io import read_dataset, read_metadata
+from enginebench.datasets.samples import RawSegments, SamplePool, check_targets
+from enginebench.datasets.schema import Schema
 from enginebench.datasets.splits import make_splits
-from enginebench.errors import SpecError, StoreError
+from enginebench.errors import DataError, SpecError, StoreError
 from enginebench.experiments import environment
 from enginebench.experiments.executors import default_workers, run_local
 from enginebench.experiments.jobs import Context, Job, Problem
@@ -36,27 +39,73 @@ def physical_model_for(ds) -> object | None:
     return get_physical_model(name, ds.meta)
 
 
+def needed_columns(schema: Schema, spec: ExperimentSpec) -> list[str]:
+    """The columns an experiment reads: run-time inputs, its targets, group keys, and internals in simulation mode.
+
+    Internal channels are read only in simulation mode, where cascades train on them;
+    other outputs are never read. At full size this halves what is loaded.
+    """
+    keep = set(schema.inputs) | set(spec.targets) | set(schema.groups)
+    if spec.mode == "simulation":
+        keep |= set(schema.internals)
+    column = spec.split.get("column")
+    if isinstance(column, str):
+        keep.add(column)
+    return [c for c in schema.names() if c in keep]
+
+
+def load_dataset(spec: ExperimentSpec) -> tuple[Dataset, str]:
+    """The experiment's dataset with its roles applied (only the needed columns), and the stored data's hash.
+
+    A Parquet-backed dataset is read with column projection and hashed by the content
+    hash stored in its footer (the hash of the data as stored, before re-roling).
+    """
+    path = catalog.locate(spec.dataset, variant=spec.dataset_variant)
+    if path is None:  # a TOML import spec: imported whole
+        ds = catalog.load(spec.dataset, variant=spec.dataset_variant)
+        dataset_hash = ds.content_hash()
+        return (ds.with_roles(spec.roles) if spec.roles else ds), dataset_hash
+    doc = read_metadata(path)
+    schema = Schema.from_dict(doc["schema"])
+    roled = schema.with_roles(spec.roles) if spec.roles else schema
+    for target in spec.targets:  # the message names the column and its role, before anything is read
+        if roled[target].role != "output":
+            raise DataError(f"column {target!r} has role {roled[target].role!r}; only 'output' columns can be targets")
+    columns = needed_columns(roled, spec)
+    ds = read_dataset(path, columns=columns)
+    if spec.roles:
+        ds = ds.with_roles({k: v for k, v in spec.roles.items() if k in columns})
+    return ds, str(doc.get("content_hash", ""))
+
+
 def prepare(spec: ExperimentSpec) -> Context:
-    """Load data and methods and build every problem's samples (fails early on bad specs)."""
+    """Load data and methods and set up every problem's sample pools (fails early on bad specs).
+
+    The raw arrays of each split part are read once and shared by all targets and
+    windows; features are built per job for the rows it uses (see ``SamplePool``).
+    """
     methods = {}
     for name in spec.methods:
         cls = registry.get(name)
         method = cls(**spec.method_options.get(name, {}))
         method.check_mode(spec.mode)
         methods[name] = method
-    ds = catalog.load(spec.dataset, variant=spec.dataset_variant)
-    dataset_hash = ds.content_hash()  # of the data as stored, before this experiment re-roles columns
-    if spec.roles:
-        ds = ds.with_roles(spec.roles)
+    ds, dataset_hash = load_dataset(spec)
+    check_targets(ds, spec.targets)
     pm = physical_model_for(ds)
     splits = make_splits(ds, **spec.split)
+    internals = None if spec.mode == "simulation" else []
+    raws = {split.name: {name: RawSegments.from_dataset(part, outputs=spec.targets, internals=internals)
+                         for name, part in {"train": split.train, **split.parts()}.items()}
+            for split in splits}
+    name = ds.name
+    del ds, splits  # the frames are no longer needed: the pools hold the arrays
     problems = {}
-    for target, window, split in itertools.product(spec.targets, spec.windows, splits):
-        train = make_samples(split.train, [target], spec.mode, window, physical_model=pm)
-        parts = {name: make_samples(part, [target], spec.mode, window, physical_model=pm)
-                 for name, part in split.parts().items()}
-        problems[(target, window, split.name)] = Problem(train=train, parts=parts)
-    return Context(spec=spec, dataset=ds.name, problems=problems, methods=methods, dataset_hash=dataset_hash)
+    for target, window, split in itertools.product(spec.targets, spec.windows, raws):
+        pools = {name: SamplePool(raw, [target], spec.mode, window, physical_model=pm) for name, raw in raws[split].items()}
+        train = pools.pop("train")
+        problems[(target, window, split)] = Problem(train=train, parts=pools)
+    return Context(spec=spec, dataset=name, problems=problems, methods=methods, dataset_hash=dataset_hash)
 
 
 def plan(ctx: Context) -> list[Job]:
