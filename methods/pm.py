@@ -8,7 +8,11 @@ stateful models (lags, thermal inertia) see their history.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+import hashlib
+import pickle
+import weakref
+from collections import OrderedDict
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -42,15 +46,67 @@ def calibration_signals(data: Samples) -> list[dict[str, np.ndarray]]:
     return out
 
 
+class SimulationCache:
+    """Whole-segment simulations of a physical model, reused while the segment's arrays live.
+
+    A job asks for the PM at a subsample's rows, but a stateful PM must run over the
+    whole segment; every resample, block and repetition of a worker asks again with the
+    same arrays and, for a PM calibrated elsewhere (factory test), the same parameters.
+    Entries are keyed by the identity of the segment's input and time arrays (checked
+    through weak references, so a freed array never matches), the model, its
+    parameters, dt and targets; the oldest go first beyond ``max_bytes``.
+    """
+
+    def __init__(self, max_bytes: int = 256 * 2**20) -> None:
+        self.max_bytes = max_bytes
+        self._entries: OrderedDict[tuple, tuple[weakref.ref, weakref.ref, np.ndarray]] = OrderedDict()
+        self._bytes = 0
+        self.hits = 0
+
+    def simulate(self, pm: Any, params: Mapping[str, Any], U: np.ndarray, t: np.ndarray, input_names: Sequence[str],
+                 target_names: Sequence[str], dt: float) -> np.ndarray:
+        """The PM's targets over the whole segment, (n, k)."""
+        key = (id(U), id(t), pm.name, _fingerprint(params), float(dt), tuple(input_names), tuple(target_names))
+        hit = self._entries.get(key)
+        if hit is not None and hit[0]() is U and hit[1]() is t:
+            self._entries.move_to_end(key)
+            self.hits += 1
+            return hit[2]
+        sig = {name: U[:, j] for j, name in enumerate(input_names)}
+        sig["time"] = t
+        sim = pm.simulate(params, sig, dt)
+        values = np.column_stack([np.asarray(sim[name], dtype=float) for name in target_names])
+        values.setflags(write=False)
+        if hit is not None:
+            self._drop(key)
+        if values.nbytes <= self.max_bytes:
+            self._entries[key] = (weakref.ref(U), weakref.ref(t), values)
+            self._bytes += values.nbytes
+            while self._bytes > self.max_bytes:
+                self._drop(next(iter(self._entries)))
+        return values
+
+    def _drop(self, key: tuple) -> None:
+        self._bytes -= self._entries.pop(key)[2].nbytes
+
+    def clear(self) -> None:
+        self._entries.clear()
+        self._bytes = 0
+
+
+def _fingerprint(params: Mapping[str, Any]) -> str:
+    """A digest of the parameter values (exact: arrays and floats by their bytes)."""
+    return hashlib.sha1(pickle.dumps(sorted(params.items()), protocol=4)).hexdigest()
+
+
+SIMULATIONS = SimulationCache()
+"""This process's cache of whole-segment PM simulations."""
+
+
 def simulate_rows(pm: Any, params: Mapping[str, Any], data: Samples) -> list[np.ndarray]:
     """The physical model's predictions of the targets at each segment's rows, (n_i, k)."""
-    out = []
-    for s in data.segments:
-        sig = {name: s.U[:, j] for j, name in enumerate(data.input_names)}
-        sig["time"] = s.t
-        sim = pm.simulate(params, sig, data.dt)
-        out.append(np.column_stack([np.asarray(sim[t], dtype=float)[s.rows] for t in data.target_names]))
-    return out
+    return [SIMULATIONS.simulate(pm, params, s.U, s.t, data.input_names, data.target_names, data.dt)[s.rows]
+            for s in data.segments]
 
 
 class PhysicalModelMethod(Method):

@@ -176,3 +176,32 @@ def test_calibration_rejects_bad_tables():
         calibrate_to_fat(fat, free=["lhv_j_per_kg"])
     with pytest.raises(DataError, match="at least 2"):
         calibrate_to_fat(pd.DataFrame(fat.iloc[:1]))
+
+
+def test_simulation_cache_reuses_whole_segment_runs_and_never_stale_ones():
+    from enginebench.methods.pm import SimulationCache
+
+    class CountingPM:
+        name = "counting"
+        calls = 0
+
+        def simulate(self, params, sig, dt):
+            CountingPM.calls += 1
+            return {"y": params["k"] * sig["u"] + sig["time"]}
+
+    pm, cache = CountingPM(), SimulationCache()
+    U, t = np.arange(6.0)[:, None], np.arange(6.0) * 3
+    first = cache.simulate(pm, {"k": 2.0}, U, t, ["u"], ["y"], 3.0)
+    again = cache.simulate(pm, {"k": 2.0}, U, t, ["u"], ["y"], 3.0)
+    assert again is first and CountingPM.calls == 1 and cache.hits == 1
+    np.testing.assert_array_equal(first[:, 0], 2.0 * U[:, 0] + t)
+    other = cache.simulate(pm, {"k": 2.0 + 1e-15}, U, t, ["u"], ["y"], 3.0)  # any parameter change re-simulates
+    assert CountingPM.calls == 2 and not np.array_equal(other, first)
+    U2 = U.copy()  # equal values but another array: no identity match
+    cache.simulate(pm, {"k": 2.0}, U2, t, ["u"], ["y"], 3.0)
+    assert CountingPM.calls == 3
+    small = SimulationCache(max_bytes=first.nbytes)  # holds one entry: the oldest is evicted
+    small.simulate(pm, {"k": 1.0}, U, t, ["u"], ["y"], 3.0)
+    small.simulate(pm, {"k": 3.0}, U, t, ["u"], ["y"], 3.0)
+    small.simulate(pm, {"k": 1.0}, U, t, ["u"], ["y"], 3.0)
+    assert CountingPM.calls == 6 and small.hits == 0
