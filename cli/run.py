@@ -19,16 +19,23 @@ from enginebench.cli.options import load_plugins, plugin_option, store_option
 @click.option("--methods", default=None, help="Comma-separated methods to run (overrides the experiment).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Base seed (overrides the experiment).")
 @click.option("--train-size", type=click.IntRange(min=0), default=None, help="Training subsample size (0 = all rows).")
-@click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores].")
+@click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes of the local pool or local Dask cluster [default: all cores].")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
+              help="Where jobs run: local (process pool) or dask (a Dask cluster) [default: local; dask with --scheduler].")
+@click.option("--scheduler", default=None, metavar="ADDR",
+              help="Dask scheduler address (tcp://HOST:8786, e.g. of a dask-jobqueue SLURMCluster); "
+                   "without it --executor dask starts a local cluster of --jobs workers.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @store_option
 @plugin_option
-def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, quiet, store, plugins) -> None:
+def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, executor, scheduler, quiet, store,
+        plugins) -> None:
     """Run EXPERIMENT (a built-in name or a .toml file) and store it as a run.
 
     Every finished job is written to the run store at once, so an interrupted run keeps
     what it finished. The comparison table is printed at the end; `enginebench table RUN`
-    prints it again in other formats.
+    prints it again in other formats. `--executor dask` runs the jobs on a Dask cluster
+    (install with `pip install "enginebench[dask]"`); the results are the same.
     """
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import load_spec
@@ -72,7 +79,8 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, qui
                             description=f"{spec.name}: {job.method} r{job.repetition}")
 
         result = run_experiment(spec, store_obj, workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
-                                progress=tick, resume=resume)
+                                progress=tick, resume=resume, executor=executor or ("dask" if scheduler else "local"),
+                                scheduler=scheduler)
         progress.update(task, description=f"{spec.name}: done")
     raw = result.run.metrics()
     summary = summarize(raw, interval=spec.interval)

@@ -1,4 +1,5 @@
-"""Executors: where jobs run. In-process for one worker, a local process pool otherwise.
+"""Executors: where jobs run. In-process for one worker, a local process pool otherwise,
+or a Dask distributed cluster (``--executor dask``).
 
 The prepared context is pickled once and unpickled once per worker (after the worker has
 loaded any plugin files, so plugin classes resolve). Results come back to the parent,
@@ -10,9 +11,16 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import pickle
+import socket
+import sys
+import threading
+import uuid
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Iterable, Iterator
 
+from enginebench.errors import EngineBenchError
 from enginebench.experiments.jobs import Context, Job, run_job
 
 _CTX: Context | None = None
@@ -64,3 +72,203 @@ def run_local(
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
                 yield fut.result()
+
+
+# --- Dask distributed -------------------------------------------------------------------
+
+CONNECT_TIMEOUT_S = 10.0
+"""How long to wait for a given Dask scheduler before giving up with one error line."""
+
+WORKER_WAIT_S = 120.0
+"""How long to wait for the first worker (a batch queue may take a while to start one)."""
+
+DASK_MISSING = 'the dask executor needs dask.distributed: pip install "enginebench[dask]"'
+
+
+class ExecutorError(EngineBenchError):
+    """An executor that cannot be used as asked (a missing package, an unreachable scheduler)."""
+
+
+_DASK_CTX: dict[str, Context] = {}
+_DASK_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True)
+class _Payload:
+    """What every Dask worker receives once: the pickled context and how to open it."""
+
+    token: str
+    """Unique per run: a worker unpickles the context once per token."""
+    origin: tuple[str, int]
+    """(host, pid) of the parent: a worker in the parent process needs no setup."""
+    threads: int
+    """BLAS/torch threads per worker process (0: leave as is)."""
+    plugin_sources: tuple[tuple[str, str], ...]
+    """(path, text) of each plugin file."""
+    blob: bytes
+
+
+def _dask_context(payload: _Payload) -> Context:
+    """The run's context on this worker, unpickled once per worker process (then cached).
+
+    Plugin files are loaded first so that plugin classes resolve while unpickling. A
+    worker living in the parent process (a threaded LocalCluster) already has both, so it
+    changes neither the parent's thread limits nor its plugin registry.
+    """
+    with _DASK_LOCK:
+        ctx = _DASK_CTX.get(payload.token)
+        if ctx is not None:
+            return ctx
+        if payload.origin != (socket.gethostname(), os.getpid()):
+            if payload.threads:
+                _limit_threads(payload.threads)
+            _load_shipped_plugins(payload.plugin_sources)
+        ctx = pickle.loads(payload.blob)
+        _DASK_CTX.clear()  # one run at a time per worker: drop a previous run's context
+        _DASK_CTX[payload.token] = ctx
+        return ctx
+
+
+def _limit_threads(threads: int) -> None:
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(threads)
+    try:
+        import torch
+
+        torch.set_num_threads(threads)
+    except ImportError:  # pragma: no cover - torch is a core dependency
+        pass
+
+
+def _load_shipped_plugins(sources: tuple[tuple[str, str], ...]) -> None:
+    """Load plugin files on a worker: the original path when it holds the same text, else a shipped copy.
+
+    Cluster nodes need not share the parent's file system, so the parent ships each file's
+    text; the copy keeps the file name, hence the module name that pickled classes refer to.
+    """
+    import tempfile
+
+    from enginebench.methods.registry import load_plugin_file
+
+    for path, text in sources:
+        original = Path(path)
+        if f"enginebench_plugin_{original.stem}" in sys.modules:
+            continue
+        try:
+            same = original.is_file() and original.read_text(encoding="utf-8") == text
+        except OSError:
+            same = False
+        if not same:
+            folder = Path(tempfile.mkdtemp(prefix="enginebench-plugins-"))
+            original = folder / original.name
+            original.write_text(text, encoding="utf-8")
+        load_plugin_file(original)
+
+
+def _dask_work(payload: _Payload, job: Job) -> tuple[Job, Any]:
+    return job, run_job(_dask_context(payload), job)
+
+
+EXECUTORS = ("local", "dask")
+
+
+def check_executor(executor: str, scheduler: str | None, timeout: float | None = None) -> None:
+    """Fail early, before any data is loaded or a run is created, on an executor that cannot work.
+
+    Checks the name, that dask.distributed is installed, and that a given scheduler answers.
+    """
+    if executor not in EXECUTORS:
+        raise ExecutorError(f"unknown executor {executor!r}; use one of {', '.join(EXECUTORS)}")
+    if executor != "dask":
+        if scheduler:
+            raise ExecutorError(f"--scheduler {scheduler} needs --executor dask (the local executor has no scheduler)")
+        return
+    if scheduler is not None:
+        client, _ = _connect(scheduler, 1, CONNECT_TIMEOUT_S if timeout is None else timeout)
+        client.close()
+    else:
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            raise ExecutorError(DASK_MISSING) from None
+
+
+def _connect(scheduler: str | None, workers: int, timeout: float):
+    """A Dask client (and the LocalCluster it owns, or None) for ``scheduler``."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ExecutorError(DASK_MISSING) from None
+    if scheduler is None:
+        # one single-threaded worker process per --jobs, like the local pool; no memory
+        # limit (the local pool has none either) and no dashboard port to collide on
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, memory_limit=0)
+        return Client(cluster), cluster
+    try:
+        return Client(scheduler, timeout=timeout), None
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        raise ExecutorError(
+            f"cannot reach the Dask scheduler at {scheduler!r} within {timeout:g} s ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else 'no detail'}); check the address (e.g. tcp://HOST:8786) "
+            f"and that the cluster is up, or leave out --scheduler to start a local cluster"
+        ) from None
+
+
+def run_dask(
+    ctx: Context,
+    jobs: Iterable[Job],
+    workers: int,
+    plugins: tuple[str, ...] = (),
+    scheduler: str | None = None,
+    connect_timeout: float | None = None,
+) -> Iterator[tuple[Job, Any]]:
+    """Yield (job, result) as jobs finish on a Dask cluster.
+
+    With ``scheduler`` (an address such as ``tcp://host:8786``, e.g. of a dask-jobqueue
+    SLURMCluster) the jobs run on that cluster's workers and ``workers`` is not used;
+    without it a LocalCluster of ``workers`` single-threaded processes is started and
+    closed again. The context is pickled once in the parent and broadcast to every
+    worker; results come back to the parent, which alone writes to the run store.
+    Leaving the generator early (an interrupt) cancels the jobs still queued.
+    """
+    jobs = list(jobs)
+    if not jobs:
+        return
+    plugin_sources = tuple((str(Path(p).resolve()), Path(p).read_text(encoding="utf-8")) for p in plugins)
+    threads = max(1, default_workers() // workers) if scheduler is None else 1
+    blob = pickle.dumps(ctx, protocol=pickle.HIGHEST_PROTOCOL)
+    payload = _Payload(uuid.uuid4().hex, (socket.gethostname(), os.getpid()), threads, plugin_sources, blob)
+    client, cluster = _connect(scheduler, workers, CONNECT_TIMEOUT_S if connect_timeout is None else connect_timeout)
+    futures: list = []
+    try:
+        from distributed import CancelledError, KilledWorker, as_completed
+
+        cluster_trouble = (KilledWorker, CancelledError, OSError, TimeoutError)  # OSError: comm closed
+        try:
+            client.wait_for_workers(1, timeout=WORKER_WAIT_S)  # a batch queue may be slow to start one
+        except TimeoutError:
+            raise ExecutorError(
+                f"no Dask worker joined the scheduler at {scheduler or 'the local cluster'} within {WORKER_WAIT_S:g} s; "
+                f"start workers first (for dask-jobqueue: cluster.scale(jobs=N)) and run again"
+            ) from None
+        shipped = client.scatter(payload, broadcast=True, hash=False)
+        futures = [client.submit(_dask_work, shipped, job, pure=False, key=f"enginebench-{payload.token[:8]}-{job.key}")
+                   for job in jobs]
+        job_of = {fut.key: job for fut, job in zip(futures, jobs)}
+        for fut in as_completed(futures):
+            try:
+                yield fut.result()
+            except cluster_trouble as exc:  # a worker died or the cluster went away: not a method's failure
+                job = job_of[fut.key]
+                raise ExecutorError(
+                    f"job {job.key} could not run on the Dask cluster ({type(exc).__name__}: {exc}); "
+                    f"finished jobs are stored: 'enginebench run --resume RUN' runs the rest"
+                ) from exc
+    finally:
+        if futures:
+            client.cancel(futures)
+        client.close()
+        if cluster is not None:
+            cluster.close()
