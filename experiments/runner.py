@@ -20,7 +20,7 @@ from enginebench.datasets.schema import Schema
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import DataError, SpecError, StoreError
 from enginebench.experiments import environment
-from enginebench.experiments.executors import default_workers, run_local
+from enginebench.experiments.executors import check_executor, default_workers, run_dask, run_local
 from enginebench.experiments.jobs import Context, Job, Problem
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
@@ -137,8 +137,13 @@ def run_experiment(
     plugins: tuple[str, ...] = (),
     progress: ProgressFn | None = None,
     resume: Run | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
 ) -> RunResult:
     """Run ``spec`` end to end and return the stored run.
+
+    ``executor`` is ``local`` (in-process or a process pool of ``workers``) or ``dask``
+    (the cluster at ``scheduler``, or a LocalCluster of ``workers`` processes without one).
 
     With ``resume``, the run's own config is used, its finished jobs are kept as they
     are, and only the missing jobs run (a job is finished once its file exists: files
@@ -147,6 +152,7 @@ def run_experiment(
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise SpecError(f"--jobs must be >= 1, got {workers}")
+    check_executor(executor, scheduler)
     if resume is not None:
         spec = from_dict(resume.config(), origin=f"run {resume.id}")
         if spec.config_hash() != resume.info().get("config_hash"):
@@ -167,7 +173,9 @@ def run_experiment(
     n_failed = 0
     done = len(jobs) - len(todo)
     try:
-        for job, (rows, meta) in run_local(ctx, todo, workers, plugins):
+        results = (run_dask(ctx, todo, workers, plugins, scheduler) if executor == "dask"
+                   else run_local(ctx, todo, workers, plugins))
+        for job, (rows, meta) in results:
             run.write_job(job.key, rows, meta)
             n_failed += meta["status"] != "ok"
             done += 1
