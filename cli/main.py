@@ -37,6 +37,7 @@ def cli() -> None:
 
 def _register() -> None:
     from enginebench.cli import calibrate, compare, datasets, layout, learning_curve, methods, rank, run, table
+    from enginebench.cli import report
 
     cli.add_command(run.run)
     cli.add_command(datasets.datasets)
@@ -51,6 +52,8 @@ def _register() -> None:
     cli.add_command(learning_curve.learning_curve)
     cli.add_command(layout.layout)
     cli.add_command(layout.plots)
+    cli.add_command(report.report)
+    cli.add_command(report.export)
 
 
 _register()

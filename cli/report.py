@@ -1,0 +1,87 @@
+"""``enginebench report`` (an HTML page with tables and figures) and ``enginebench export`` (to MLflow)."""
+
+from __future__ import annotations
+
+import click
+
+from enginebench.cli.options import load_plugins, plugin_option, store_option
+
+
+@click.command()
+@click.argument("run_ref", metavar="RUN", default="latest")
+@click.option("--output", "-o", "out_dir", type=click.Path(file_okay=False), required=True,
+              help="Folder for index.html, table.csv and the PNG figures.")
+@click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True, help="Comma-separated metric columns of the table.")
+@click.option("--paired", "paired_metric", default="mae", show_default=True, help="Metric for the paired tests ('' to skip).")
+@click.option("--figures/--no-figures", default=True, show_default=True,
+              help="Draw figures (re-fits one repetition; --no-figures writes the tables only).")
+@click.option("--repetition", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Whose training rows and selected hyperparameters to re-fit with for the figures.")
+@click.option("--part", type=click.Choice(["test", "validation"]), default="test", show_default=True)
+@click.option("--methods", default=None, help="Comma-separated methods to draw [default: all of the run's].")
+@click.option("--trajectories", "-n", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Simulation runs: how many trajectories (the longest of the part).")
+@store_option
+@plugin_option
+def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures: bool, repetition: int, part: str,
+           methods, trajectories: int, store, plugins) -> None:
+    """Write an HTML report of RUN into DIR: tables, paired tests, settings and PNG figures.
+
+    The figures need predictions, which a run does not store: the run's methods are
+    re-fitted on one repetition's training rows with the hyperparameters the run selected
+    (measured vs predicted scatters, time trends; simulation runs: trajectories with MoE
+    gate bands). A learning-curve run gets its curve instead.
+    """
+    from enginebench.results.report import write_report
+    from enginebench.results.store import RunStore
+
+    load_plugins(plugins)
+    run = RunStore(store).get(run_ref)
+    chosen = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
+    cols = [m.strip() for m in metrics.split(",") if m.strip()]
+    result = write_report(run, out_dir, metrics=cols, paired_metric=paired_metric, figures=figures,
+                          repetition=repetition, part=part, methods=chosen, trajectories=trajectories)
+    for note in result.notes:
+        click.echo(f"note: {note}", err=True)
+    click.echo(f"wrote {result.index} ({len(result.figures)} figures)")
+
+
+@click.command()
+@click.argument("run_ref", metavar="RUN", default="latest")
+@click.option("--mlflow", "tracking_uri", required=True, metavar="URI",
+              help="MLflow tracking URI: a server (http://...), sqlite:///FILE, or a local folder / file: URI.")
+@click.option("--experiment", default=None, help="MLflow experiment name [default: the run's experiment name].")
+@click.option("--report/--no-report", "with_report", default=False, show_default=True,
+              help="Also log the HTML report (tables only, no figures with --no-figures) under report/.")
+@click.option("--figures/--no-figures", default=True, show_default=True, help="With --report: draw its figures.")
+@store_option
+@plugin_option
+def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figures: bool, store, plugins) -> None:
+    """Log RUN to an MLflow tracking store as one MLflow run.
+
+    Params: the config and the hyperparameters selected per repetition. Metrics per
+    split/target/window/method/metric: mean, ci_low, ci_high and the per-repetition values
+    (step = repetition). Artefacts: config.toml, environment.json, run.json, table.csv,
+    selected_hyperparameters.csv (and the report). Needs: pip install "enginebench[mlflow]".
+    """
+    import tempfile
+
+    from enginebench.results.mlflow_export import export_run, import_mlflow
+    from enginebench.results.store import RunStore
+
+    import_mlflow()  # a missing package is reported before any work
+    load_plugins(plugins)
+    run = RunStore(store).get(run_ref)
+    with tempfile.TemporaryDirectory(prefix="enginebench-report-") as tmp:
+        report_dir = None
+        if with_report:
+            from enginebench.results.report import write_report
+
+            written = write_report(run, tmp, figures=figures)
+            for note in written.notes:
+                click.echo(f"note: {note}", err=True)
+            report_dir = tmp
+        result = export_run(run, tracking_uri, experiment=experiment, report_dir=report_dir)
+    click.echo(f"exported run {run.id} to {result.tracking_uri}: experiment {result.experiment_id}, "
+               f"MLflow run {result.mlflow_run_id} ({len(result.params)} params, {result.n_metric_values} metric values, "
+               f"artefacts {', '.join(result.artifacts)})")
