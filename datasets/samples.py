@@ -7,6 +7,7 @@ is not in its inputs.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterator, Sequence
 
@@ -180,7 +181,7 @@ def make_samples(
     return SamplePool(raw, targets, mode, window, physical_model=physical_model).materialize()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SegmentArrays:
     """The raw arrays of one segment, read from the frame once and shared by every pool."""
 
@@ -193,7 +194,7 @@ class SegmentArrays:
     Z: np.ndarray | None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RawSegments:
     """Per-segment arrays of one dataset part, built once and shared by all (target, window) pools.
 
@@ -208,6 +209,9 @@ class RawSegments:
     dt: float
     units: dict[str, str]
     dataset: str
+    spill_file: str | None = field(default=None, compare=False)
+    """The file the arrays are memory-mapped from (see ``spill``); None while they live in memory."""
+    layout: tuple = field(default=(), compare=False, repr=False)
 
     @classmethod
     def from_dataset(cls, ds: Dataset, *, inputs: Sequence[str] | None = None, outputs: Sequence[str] | None = None,
@@ -230,6 +234,58 @@ class RawSegments:
             ))
         return cls(segments=tuple(segs), inputs=tuple(inputs), outputs=tuple(outputs), internals=tuple(internals),
                    dt=ds.dt, units={c.name: c.unit for c in ds.schema.columns}, dataset=ds.name)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for seg in self.segments for a in (seg.U, seg.Y, seg.t, seg.Z) if a is not None)
+
+    def spill(self, path: str | os.PathLike[str]) -> "RawSegments":
+        """Write every array to one file and return a copy that reads them memory-mapped from it.
+
+        The copy pickles as the file name and layout, not the data: worker processes on
+        the same machine map the same file, so the operating system keeps one shared,
+        read-only copy of the raw data in its page cache instead of one per worker.
+        The file must outlive every process that uses the copy.
+        """
+        layout, offset = [], 0
+        with open(path, "wb") as fh:
+            for seg in self.segments:
+                entry = []
+                for arr in (seg.U, seg.Y, seg.t, seg.Z):
+                    if arr is None:
+                        entry.append(None)
+                        continue
+                    arr = np.ascontiguousarray(arr, dtype=np.float64)
+                    arr.tofile(fh)
+                    entry.append((offset // 8, arr.shape))
+                    offset += arr.nbytes
+                layout.append((seg.id, tuple(entry)))
+        return RawSegments._mapped(str(path), tuple(layout), self.inputs, self.outputs, self.internals, self.dt,
+                                   self.units, self.dataset)
+
+    @classmethod
+    def _mapped(cls, path: str, layout: tuple, inputs: tuple[str, ...], outputs: tuple[str, ...],
+                internals: tuple[str, ...], dt: float, units: dict[str, str], dataset: str) -> "RawSegments":
+        """The arrays of a spilled file as read-only views of one memory map."""
+        total = sum(int(np.prod(shape)) for _, entry in layout for item in entry if item is not None
+                    for shape in [item[1]])
+        flat = np.memmap(path, dtype=np.float64, mode="r", shape=(total,)) if total else np.empty(0)
+
+        def view(item: tuple | None) -> np.ndarray | None:
+            if item is None:
+                return None
+            start, shape = item
+            return flat[start:start + int(np.prod(shape))].reshape(shape)
+
+        segments = tuple(SegmentArrays(sid, *(view(item) for item in entry)) for sid, entry in layout)
+        return cls(segments=segments, inputs=inputs, outputs=outputs, internals=internals, dt=dt, units=units,
+                   dataset=dataset, spill_file=path, layout=layout)
+
+    def __reduce__(self):
+        if self.spill_file is None:
+            return super().__reduce__()
+        return (RawSegments._mapped, (self.spill_file, self.layout, self.inputs, self.outputs, self.internals,
+                                      self.dt, self.units, self.dataset))
 
 
 class SamplePool:

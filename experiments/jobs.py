@@ -79,7 +79,7 @@ def subsample_segments(sizes: np.ndarray, size: int, rng: np.random.Generator) -
     return np.concatenate([np.arange(edges[k], edges[k + 1]) for k in np.sort(keep)])
 
 
-PREDICT_BATCH_ROWS = 50_000
+PREDICT_BATCH_ROWS = 20_000
 """Rows predicted at a time in static and window modes: bounds the feature and kernel blocks of a job."""
 
 

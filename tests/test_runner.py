@@ -62,6 +62,38 @@ def test_process_pool_gives_the_same_metrics_as_serial(toy_parquet, tmp_path):
     np.testing.assert_allclose(s, p, rtol=1e-9, atol=1e-12)  # BLAS threads may differ
 
 
+def test_workers_share_spilled_raw_data_and_agree_with_serial(toy_parquet, tmp_path, monkeypatch):
+    """Raw arrays spilled to a memory-mapped file (as at full size) give the serial run's metrics."""
+    import pickle
+
+    from enginebench.experiments import runner
+
+    spec = toy_spec(toy_parquet, repetitions=2, mode="window", windows=[0, 2])
+    ctx = prepare(spec)
+    before = len(pickle.dumps(ctx))
+    runner.spill_problems(ctx, tmp_path, min_bytes=0)
+    pools = [p for prob in ctx.problems.values() for p in (prob.train, *prob.parts.values())]
+    assert all(p.raw.spill_file for p in pools)
+    assert len({id(p.raw) for p in pools}) == 2  # one shared copy per split part (train, test), not per window
+    assert len(pickle.dumps(ctx)) < before / 5  # workers receive file names, not data
+    monkeypatch.setattr(runner, "SPILL_MIN_BYTES", 0)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(runner.tempfile, "tempdir", str(scratch))
+    spills = []
+    real_spill = runner.spill_problems
+    monkeypatch.setattr(runner, "spill_problems", lambda c, d, min_bytes=None: (spills.append(d), real_spill(c, d, min_bytes)))
+    store = RunStore(tmp_path / "runs")
+    serial = run_experiment(spec, store, workers=1).run.metrics()
+    pooled = run_experiment(spec, store, workers=2).run.metrics()
+    key = ["method", "window", "repetition", "split", "metric"]
+    s = serial[~serial["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
+    p = pooled[~pooled["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
+    np.testing.assert_allclose(s, p, rtol=1e-9, atol=1e-12)
+    assert len(spills) == 1 and spills[0].parent == scratch  # only the pooled run spills
+    assert not list(scratch.iterdir())  # the spill folder is removed after the run
+
+
 def test_methods_of_a_repetition_share_the_training_rows(toy_parquet, tmp_path):
     run = run_experiment(toy_spec(toy_parquet, repetitions=2), RunStore(tmp_path), workers=1).run
     n0 = run.job_meta("y__w0__published__krls__r000")["n_train"]
