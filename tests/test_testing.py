@@ -1,0 +1,248 @@
+"""enginebench.testing.check_method: built-in methods pass it; broken methods fail it with the right message."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods import registry
+from enginebench.methods.base import Method
+from enginebench.testing import CHECKS, ConformanceError, check_method, tiny_samples
+
+SMALL_GRID = {"gamma_grid": (-2, 0, 3), "lambda_grid": (-3, -1, 3)}
+
+
+@pytest.mark.parametrize("name, options", [
+    ("naive-mean", {}),
+    ("naive-last", {}),
+    ("krls", SMALL_GRID),
+    ("pm", {}),  # on the check's tiny linear physical model
+    ("nfir", {}),
+])
+def test_builtin_methods_conform(name, options):
+    cls = registry.get(name)
+    report = check_method(cls, options)
+    assert report.method == name and not report.skipped
+    for mode in sorted(cls.modes & {"static", "window"}):
+        for check in CHECKS[2:]:
+            assert f"{check}[{mode}]" in report.passed
+
+
+def test_mtl_krls_conforms_except_the_feature_count_check():
+    """mtl-krls passes every check but one: a wrong feature count reaches sklearn's scaler.
+
+    Its ``_eval`` does not compare the feature count with the training features (krls's
+    ``_eval_features`` does), so the user gets a bare ValueError. That belongs in
+    methods/mtl_krls.py; until then this test records it, and passes outright once fixed.
+    """
+    try:
+        report = check_method(registry.get("mtl-krls"), {**SMALL_GRID, "theta_grid": (-1, 1, 3)})
+    except ConformanceError as exc:
+        assert {check for check, _ in exc.failures} == {"bad-input"}, str(exc)
+        assert all("feature columns" in msg and "ValueError" in msg for _, msg in exc.failures), str(exc)
+        pytest.xfail("mtl-krls raises a bare ValueError on a wrong feature count (methods/mtl_krls.py)")
+    else:
+        assert "determinism[static]" in report.passed and "no-target-leakage[window]" in report.passed
+
+
+def test_simulation_only_methods_are_skipped_with_the_reason():
+    report = check_method(registry.get("sindy"))
+    assert report.passed == ["attributes", "options"]
+    assert "check_method covers static and window" in report.skipped["determinism"]
+
+
+# -- broken methods --------------------------------------------------------------------------
+
+class MeanBase(Method):
+    """Training mean, with a checked feature count; the broken methods below change one thing."""
+
+    name = "test-mean"
+    family = "baseline"
+    modes = frozenset({"static"})
+
+    def fit(self, train: Samples, params, rng: np.random.Generator):
+        return {"mean": train.y.mean(axis=0), "d": train.X.shape[1]}
+
+    def predict(self, fitted, data: Samples) -> list[np.ndarray]:
+        if data.X.shape[1] != fitted["d"]:
+            raise MethodError(f"{self.name}: wrong feature count")
+        return [np.tile(fitted["mean"], (len(s), 1)) for s in data.segments]
+
+
+# (module level: a method must pickle by reference to reach worker processes)
+
+class Jitter(MeanBase):
+    name = "test-jitter"
+
+    def fit(self, train, params, rng):
+        fitted = super().fit(train, params, rng)
+        fitted["mean"] = fitted["mean"] + np.random.default_rng().normal(0, 1e-3)  # not from rng
+        return fitted
+
+
+class Peek(MeanBase):
+    name = "test-peek"
+
+    def predict(self, fitted, data):
+        return [s.y.reshape(len(s), -1) if s.y is not None else np.asarray(data.y) for s in data.segments]
+
+
+class QuietPeek(MeanBase):
+    name = "test-peek-quietly"
+
+    def predict(self, fitted, data):
+        return [s.y.reshape(len(s), -1) if s.y is not None else np.tile(fitted["mean"], (len(s), 1))
+                for s in data.segments]
+
+
+class Flat(MeanBase):
+    name = "test-flat"
+
+    def predict(self, fitted, data):
+        return [np.full(len(s), fitted["mean"][0]) for s in data.segments]
+
+
+class BadGrid(MeanBase):
+    name = "test-bad-grid"
+
+    def search_space(self, data):
+        return {"c": np.array([1.0, 2.0])}
+
+    def predict_grid(self, train, data, grid, rng):
+        return np.zeros((len(data), len(grid)))
+
+
+class Closure(MeanBase):
+    name = "test-closure"
+
+    def fit(self, train, params, rng):
+        fitted = super().fit(train, params, rng)
+        fitted["f"] = lambda x: x
+        return fitted
+
+
+class Unchecked(MeanBase):
+    name = "test-unchecked"
+
+    def predict(self, fitted, data):
+        w = np.ones((fitted["d"], 1))
+        return [s.X @ w * 0 + fitted["mean"] for s in data.segments]  # NaN passes through; shapes clash
+
+
+class NoCount(MeanBase):
+    name = "test-no-count"
+
+    def predict(self, fitted, data):
+        if not np.isfinite(data.X).all():
+            raise MethodError("non-finite features")
+        w = np.ones((fitted["d"], 1))
+        return [s.X @ w * 0 + fitted["mean"] for s in data.segments]
+
+
+class Magic(MeanBase):
+    name = "test-magic"
+    family = "magic"
+
+
+class Lax(MeanBase):
+    name = "test-lax"
+
+    def __init__(self, **options):
+        self.options = dict(options)
+
+
+def failures_of(cls: type[Method]) -> dict[str, list[str]]:
+    with pytest.raises(ConformanceError) as info:
+        check_method(cls)
+    out: dict[str, list[str]] = {}
+    for check, message in info.value.failures:
+        out.setdefault(check, []).append(message)
+    assert str(info.value).startswith(f"method {cls.name!r} failed {len(out)} of {len(CHECKS)} conformance checks:")
+    return out
+
+
+def test_the_well_behaved_base_passes():
+    assert check_method(MeanBase).passed[-1] == "bad-input[static]"
+
+
+def test_a_non_deterministic_method_fails_determinism():
+    failures = failures_of(Jitter)
+    assert list(failures) == ["determinism"]
+    (message,) = failures["determinism"]
+    assert message.startswith("[determinism] method 'test-jitter' (static mode): fit + predict twice with the same "
+                              "seed gave different predictions")
+    assert "only from the rng argument of fit" in message
+
+
+def test_a_method_reading_the_targets_fails_leakage():
+    failures = failures_of(Peek)
+    assert "no-target-leakage" in failures
+    assert failures["no-target-leakage"][0] == (
+        "[no-target-leakage] method 'test-peek' (static mode): predict read the targets of the samples it must "
+        "predict (data.y), which are removed before predict; use only data.X, data.U and data.t")
+
+
+def test_targets_reaching_predict_by_another_way_fail_leakage(monkeypatch):
+    """If the targets got through to predict (here: a pipeline that forgot to remove them),
+    the perturbation check still catches a method that uses them."""
+    monkeypatch.setattr(Samples, "without_targets", lambda self: self)
+    failures = failures_of(QuietPeek)
+    assert failures["no-target-leakage"] == [
+        "[no-target-leakage] method 'test-peek-quietly' (static mode): changing the targets of the evaluated rows "
+        "(never features) changed the predictions: the method reads what it must predict"]
+
+
+def test_wrong_shapes_fail_shapes():
+    failures = failures_of(Flat)
+    assert failures["shapes"][0].startswith("[shapes] method 'test-flat' (static mode): predict returned shape (25,) "
+                                            "for segment 's3'; expected (25, 1)")
+
+
+def test_a_wrong_predict_grid_shape_fails_shapes():
+    failures = failures_of(BadGrid)
+    assert list(failures) == ["shapes"]
+    assert "predict_grid over 2 grid points returned shape (50, 2); expected (2, 50, 1)" in failures["shapes"][0]
+
+
+def test_an_unpicklable_fitted_model_fails_the_round_trip():
+    failures = failures_of(Closure)
+    assert list(failures) == ["pickle-round-trip"]
+    assert "pickling the method or its fitted model failed" in failures["pickle-round-trip"][0]
+
+
+def test_a_bare_traceback_on_bad_input_fails():
+    failures = failures_of(Unchecked)
+    assert list(failures) == ["bad-input"]
+    message = failures["bad-input"][0]
+    assert message.startswith("[bad-input] method 'test-unchecked' (static mode): predict with a NaN feature "
+                              "returned non-finite predictions instead of raising MethodError")
+
+
+def test_a_bare_value_error_on_a_wrong_feature_count_fails():
+    failures = failures_of(NoCount)
+    assert list(failures) == ["bad-input"]
+    assert "predict with 1 feature columns (trained on 2) raised ValueError" in failures["bad-input"][0]
+    assert "a bare traceback for the user" in failures["bad-input"][0]
+
+
+def test_bad_class_attributes_stop_the_suite():
+    with pytest.raises(ConformanceError) as info:
+        check_method(Magic)
+    assert info.value.failures == [("attributes", "[attributes] method 'test-magic': family 'magic' is not one of "
+                                                  "physical, data-driven, hybrid, baseline")]
+
+
+def test_silently_accepted_unknown_options_fail():
+    failures = failures_of(Lax)
+    assert list(failures) == ["options"]
+    assert "was accepted silently" in failures["options"][0]
+
+
+def test_tiny_samples_shapes():
+    train, test = tiny_samples("window")
+    assert len(train.segments) == 3 and len(test.segments) == 2
+    assert train.feature_names == ("u1[t]", "u1[t-1]", "u1[t-2]", "u2[t]", "u2[t-1]", "u2[t-2]", "y[t-1]", "y[t-2]")
+    assert len(test) == 2 * (25 - 2)
+    assert train.physical_model is not None
