@@ -246,3 +246,19 @@ def test_tiny_samples_shapes():
     assert train.feature_names == ("u1[t]", "u1[t-1]", "u1[t-2]", "u2[t]", "u2[t-1]", "u2[t-2]", "y[t-1]", "y[t-2]")
     assert len(test) == 2 * (25 - 2)
     assert train.physical_model is not None
+
+
+def test_the_readme_example_method_conforms(tmp_path, monkeypatch):
+    """The Method example under README's 'Writing a method' passes the suite it advertises."""
+    import importlib
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = readme[readme.index("## Writing a method"):]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    (tmp_path / "readme_ridge_example.py").write_text(code)  # a real module, so the class pickles by reference
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("readme_ridge_example")
+    report = check_method(module.Ridge, {"alpha_grid": (-2, 2, 5)})
+    assert "bad-input[window]" in report.passed
