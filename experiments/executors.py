@@ -202,9 +202,9 @@ def _connect(scheduler: str | None, workers: int, timeout: float):
         raise ExecutorError(DASK_MISSING) from None
     if scheduler is None:
         # one single-threaded worker process per --jobs, like the local pool; no memory
-        # limit (the local pool has none either) and no dashboard port to collide on
+        # limit (the local pool has none either); the dashboard on a free port, never a fixed one
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, memory_limit=0)
+                               dashboard_address=":0", memory_limit=0)
         return Client(cluster), cluster
     try:
         return Client(scheduler, timeout=timeout), None

@@ -29,7 +29,7 @@ KEY = ["target", "window", "split", "method", "repetition", "metric"]
 @pytest.fixture(scope="module")
 def scheduler():
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, memory_limit=0)
+                                       dashboard_address=":0", memory_limit=0)
     try:
         yield cluster.scheduler_address
     finally:
@@ -125,6 +125,12 @@ def test_an_interrupted_dask_run_resumes_on_dask(dataset, reference, tmp_path, s
                             progress=lambda d, t, j: seen.append(j.key))
     assert len(seen) == 4 and not set(seen) & before  # only the missing jobs ran
     assert result.run.info()["status"] == "finished" and len(result.run.finished_jobs()) == 6
+    pd.testing.assert_frame_equal(metric_table(reference), metric_table(result.run), check_exact=True)
+
+
+def test_without_a_scheduler_a_local_cluster_of_jobs_workers_is_started(dataset, reference, tmp_path):
+    result = run_experiment(toy_spec(dataset), RunStore(tmp_path / "runs"), workers=2, executor="dask")
+    assert result.n_failed == 0
     pd.testing.assert_frame_equal(metric_table(reference), metric_table(result.run), check_exact=True)
 
 
