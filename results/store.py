@@ -25,8 +25,8 @@ Faults, and what the store does about them:
   run.json, then the id), whatever the ids' spelling;
 * a damaged job file (truncated, garbled: job files carry Parquet page checksums): reading
   the run's metrics refuses with a message naming the file, and ``finished_jobs`` does not
-  count it, so ``run --resume`` recomputes that job (with a warning naming the file) and
-  keeps every other job as it is.
+  count it, so ``run --resume`` recomputes that job and keeps every other job as it is
+  (``damaged_jobs`` names the damaged files and why).
 """
 
 from __future__ import annotations
@@ -39,7 +39,6 @@ import re
 import shutil
 import tempfile
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -66,8 +65,8 @@ DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """Write errors reported as a full disk (no space left, quota exceeded)."""
 
 
-def _write_bytes(fh: Any, data: bytes) -> None:
-    """Write ``data`` to an open file (one place, so tests can simulate a full disk here)."""
+def _write_bytes(fh: Any, data: bytes, path: Path) -> None:
+    """Write ``data`` to the open file ``fh`` at ``path`` (one place, so tests can simulate a full disk here)."""
     fh.write(data)
 
 
@@ -107,7 +106,7 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
-            _write_bytes(fh, data)
+            _write_bytes(fh, data, Path(tmp))
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -205,8 +204,8 @@ class Run:
         return sorted(p for p in self.jobs_dir.glob("*.parquet") if not p.name.startswith("."))
 
     @staticmethod
-    def _load_job(path: Path) -> tuple[pa.Table, dict[str, Any]]:
-        """A job file's table and metadata (raises one of READ_ERRORS when the file is damaged)."""
+    def _load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, dict[str, Any]]:
+        """A job file's rows (when ``frame``) and metadata; raises one of READ_ERRORS when the file is damaged."""
         table = _read_parquet(path)
         raw = (table.schema.metadata or {}).get(JOB_META_KEY)
         if raw is None:
@@ -214,12 +213,16 @@ class Run:
         meta = json.loads(raw)
         if not isinstance(meta, dict):
             raise ValueError("the job metadata is not a JSON object")
-        return table, meta
+        if not frame:
+            table.schema.names  # noqa: B018 - decodes the column names, which a garble can break
+            json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
+            return None, meta
+        return table.to_pandas(), meta
 
-    def _read_job(self, path: Path) -> tuple[pa.Table, dict[str, Any]]:
-        """A job file's table and metadata; StoreError naming the file when it is damaged."""
+    def _read_job(self, path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
+        """A job file's rows and metadata; StoreError naming the file when it is damaged."""
         try:
-            return self._load_job(path)
+            return self._load_job(path)  # type: ignore[return-value]
         except READ_ERRORS as exc:
             raise StoreError(
                 f"run {self.id}: job file {path} is damaged ({_damage(exc)}); the other jobs are intact: "
@@ -231,27 +234,21 @@ class Run:
         out = {}
         for p in self.job_files():
             try:
-                self._load_job(p)
+                self._load_job(p, frame=False)
             except READ_ERRORS as exc:
                 out[p.stem] = _damage(exc)
         return out
 
-    def finished_jobs(self) -> set[str]:
+    def finished_jobs(self, verify: bool = True) -> set[str]:
         """Keys of the jobs whose files are complete and readable.
 
-        A damaged job file does not count (a warning names it), so ``run --resume``
-        computes that job again and replaces the file; every other job is kept.
+        With ``verify`` (the default, what ``run --resume`` relies on) every job file is
+        read back whole and a damaged one does not count, so resuming computes that job
+        again and replaces the file while every other job is kept; ``damaged_jobs`` says
+        which and why. ``verify=False`` only lists the files (fast, for counts).
         """
         keys = {p.stem for p in self.job_files()}
-        damaged = self.damaged_jobs()
-        for key, reason in sorted(damaged.items()):
-            warnings.warn(
-                f"run {self.id}: job file {self.jobs_dir / (key + '.parquet')} is damaged ({reason}); it counts as "
-                "unfinished and `enginebench run --resume` recomputes it",
-                UserWarning,
-                stacklevel=2,
-            )
-        return keys - set(damaged)
+        return keys - set(self.damaged_jobs()) if verify else keys
 
     def write_job(self, key: str, rows: pd.DataFrame, meta: dict[str, Any]) -> Path:
         """Write one finished job's metric rows and metadata atomically (StoreError on a failed write)."""
@@ -286,7 +283,7 @@ class Run:
         files = self.job_files()
         if not files:
             raise StoreError(f"run {self.id} has no finished job yet")
-        return pd.concat([self._read_job(p)[0].to_pandas() for p in files], ignore_index=True)
+        return pd.concat([self._read_job(p)[0] for p in files], ignore_index=True)
 
 
 def _slug(text: str) -> str:

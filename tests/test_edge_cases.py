@@ -123,7 +123,7 @@ def test_krls_on_repeated_rows_equals_the_unique_rows_with_lambda_over_the_copie
 
 
 def test_a_run_on_contradictory_duplicates_with_tiny_lambda_stores_finite_metrics(toy, tmp_path):
-    toy = shortened(toy, 60)
+    toy = shortened(toy, 30)
     ds = duplicated(toy.select_segments(["s0", "s1", "s2"]), 3, levels=4)
     ds = ds.with_frame(pd.concat([ds.frame, toy.select_segments(["s3"]).frame], ignore_index=True))
     path = write_dataset(ds, tmp_path / "dup.parquet")

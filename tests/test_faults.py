@@ -1,0 +1,340 @@
+"""Faults of the machine and the store: each is detected, reported in one line, and loses no finished job.
+
+* the process killed mid-run (SIGKILL): ``tests/test_runner.py::test_killed_process_resumes_from_the_command_line``
+  (finished jobs readable, ``--resume`` completes); here: a write cut short leaves only a
+  hidden temporary file that is never read as a job and is removed on resume;
+* the disk full while writing a result: the run stops with an error naming the store and
+  saying "disk full", no partial job file, earlier jobs readable, ``--resume`` finishes;
+* two processes writing runs into one store at once: distinct run ids, no clobbered
+  files, ``latest`` is the run created last;
+* a damaged job file: ``table`` and ``runs show`` refuse naming the file; ``--resume``
+  treats that job as unfinished and recomputes only it.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from enginebench.cli.main import cli
+from enginebench.errors import StoreError
+from enginebench.experiments.runner import run_experiment
+from enginebench.experiments.spec import from_dict
+from enginebench.results import store as store_mod
+from enginebench.results.store import RunStore
+
+KEY = ["method", "repetition", "split", "metric"]
+
+
+def toy_spec(dataset, **changes):
+    raw = {
+        "name": "fault-exp", "dataset": str(dataset), "targets": ["y"], "repetitions": 3, "seed": 5,
+        "train_size": 100, "selection": {"kind": "bootstrap", "resamples": 2},
+        "methods": {"naive-mean": {}, "krls": {"gamma_grid": [-1, 0, 2], "lambda_grid": [-2, -1, 2]}},
+    }
+    raw.update(changes)
+    return from_dict(raw, origin="test")
+
+
+def exp_file(tmp_path: Path, dataset: Path, repetitions: int = 3) -> Path:
+    path = tmp_path / "exp.toml"
+    path.write_text(textwrap.dedent(f'''
+        name = "fault-exp"
+        dataset = "{dataset}"
+        targets = ["y"]
+        repetitions = {repetitions}
+        seed = 5
+        train_size = 100
+        [selection]
+        resamples = 2
+        [methods.naive-mean]
+        [methods.krls]
+        gamma_grid = [-1, 0, 2]
+        lambda_grid = [-2, -1, 2]
+    '''))
+    return path
+
+
+def values(metrics):
+    """Metric values without timings, in a fixed order (for comparing runs)."""
+    keep = metrics[~metrics["metric"].str.startswith("time_")].sort_values(KEY)
+    return keep["value"].to_numpy()
+
+
+def leftovers(run) -> list[str]:
+    """Hidden (temporary) files anywhere in a run folder."""
+    return sorted(p.name for p in run.path.rglob(".*"))
+
+
+# ----------------------------------------------------------------------------- killed mid-write
+def test_a_write_cut_short_is_never_read_as_a_job_and_is_removed_on_resume(toy_parquet, tmp_path):
+    spec = toy_spec(toy_parquet)
+    store = RunStore(tmp_path / "runs")
+
+    class Stop(Exception):
+        pass
+
+    def stop(done, total, job):
+        if done == 2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_experiment(spec, store, workers=1, progress=stop)
+    (run,) = store.runs()
+    # what a SIGKILL during the write of the third job leaves behind: a partial temporary file
+    partial = run.jobs_dir / ".y__w0__published__krls__r001.parquet.abc123.tmp"
+    partial.write_bytes(b"PAR1\x00\x01 half a job")
+    assert len(run.finished_jobs()) == 2 and len(run.metrics()) > 0
+    run_experiment(spec, store, workers=1, resume=run)
+    assert not partial.exists() and leftovers(run) == []
+    assert len(run.finished_jobs()) == 6
+
+
+# ----------------------------------------------------------------------------- disk full
+def full_disk_after(n_ok: int, monkeypatch) -> dict:
+    """Let ``n_ok`` job files be written, then fail every write with ENOSPC after writing half of it."""
+    state = {"jobs": 0, "full": False}
+    real = store_mod._write_bytes
+
+    def write(fh, data, path):
+        if not state["full"] and ".parquet." in path.name:
+            state["jobs"] += 1
+            state["full"] = state["jobs"] > n_ok
+        if state["full"]:
+            real(fh, data[: len(data) // 2], path)  # the disk fills up part-way through the file
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(fh, data, path)
+
+    monkeypatch.setattr(store_mod, "_write_bytes", write)
+    return state
+
+
+def test_disk_full_stops_the_run_keeps_earlier_jobs_and_resumes(toy_parquet, tmp_path, monkeypatch):
+    spec = toy_spec(toy_parquet)
+    reference = run_experiment(spec, RunStore(tmp_path / "ref"), workers=1).run.metrics()
+    store = RunStore(tmp_path / "runs")
+    full_disk_after(2, monkeypatch)
+    with pytest.raises(StoreError) as err:
+        run_experiment(spec, store, workers=1)
+    message = str(err.value)
+    assert "disk full" in message and str(store.root) in message and "\n" not in message
+    assert "--resume" in message
+    (run,) = store.runs()
+    assert leftovers(run) == []  # no partial job file, no temporary file
+    assert len(run.finished_jobs()) == 2
+    assert run.metrics()["repetition"].nunique() == 1  # the two jobs of repetition 0, readable
+    assert run.info()["id"] == run.id  # run.json intact (its last update failed as a whole)
+    monkeypatch.undo()  # space is freed
+    result = run_experiment(spec, store, workers=1, resume=run)
+    assert result.run.info()["status"] == "finished" and len(run.finished_jobs()) == 6
+    assert np.array_equal(values(reference), values(run.metrics()), equal_nan=True)
+
+
+def test_disk_full_while_writing_a_job_names_the_job_file(toy_parquet, tmp_path, monkeypatch):
+    """Only job files fail (the small status file still fits): the error names the job and its file."""
+    real = store_mod._write_bytes
+    seen = {"n": 0}
+
+    def write(fh, data, path):
+        if ".parquet." in path.name:
+            seen["n"] += 1
+            if seen["n"] == 2:
+                raise OSError(errno.ENOSPC, "No space left on device")
+        real(fh, data, path)
+
+    monkeypatch.setattr(store_mod, "_write_bytes", write)
+    store = RunStore(tmp_path / "runs")
+    with pytest.raises(StoreError) as err:
+        run_experiment(toy_spec(toy_parquet), store, workers=1)
+    (run,) = store.runs()
+    job = "y__w0__published__krls__r000"
+    assert str(err.value) == (
+        f"disk full while writing job {job} of run {run.id} to {run.jobs_dir / (job + '.parquet')} in the store "
+        f"{store.root} (No space left on device); nothing partial was kept; free space and finish the run with "
+        f"`enginebench run --resume {run.id}`"
+    )
+    assert run.info()["status"] == "interrupted" and run.info()["finished_jobs"] == 1
+    assert run.finished_jobs() == {"y__w0__published__naive-mean__r000"} and leftovers(run) == []
+
+
+def test_disk_full_at_the_command_line_is_one_error_line_and_exit_2(toy_parquet, tmp_path, monkeypatch):
+    exp = exp_file(tmp_path, toy_parquet)
+    store = tmp_path / "runs"
+    full_disk_after(3, monkeypatch)
+    result = CliRunner().invoke(cli, ["run", str(exp), "-j", "1", "-q", "--store", str(store)])
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit)
+    lines = result.output.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: disk full while writing ") and str(store) in lines[0]
+    monkeypatch.undo()
+    (run,) = RunStore(store).runs()
+    assert len(run.finished_jobs()) == 3
+    resumed = CliRunner().invoke(cli, ["run", "--resume", run.id, "-j", "1", "-q", "--store", str(store)])
+    assert resumed.exit_code == 0, resumed.output
+    assert len(run.finished_jobs()) == 6 and run.info()["status"] == "finished"
+
+
+def test_a_run_folder_that_cannot_be_set_up_is_removed(tmp_path, monkeypatch):
+    def write(fh, data, path):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(store_mod, "_write_bytes", write)
+    store = RunStore(tmp_path / "runs")
+    with pytest.raises(StoreError, match=r"^disk full while writing the run's config .*config\.toml in the store "):
+        store.create("x", {"a": 1}, "0123456789", {}, 1)
+    assert list(store.root.iterdir()) == [] and store.runs() == []
+
+
+# ----------------------------------------------------------------------------- two writers
+WRITER = textwrap.dedent('''
+    import os, sys, time
+    from pathlib import Path
+    from enginebench.results.store import RunStore
+    root, go, tag, n = sys.argv[1], Path(sys.argv[2]), sys.argv[3], int(sys.argv[4])
+    while not go.exists():
+        time.sleep(0.001)
+    store = RunStore(root)
+    for i in range(n):
+        store.create("same-name", {"writer": tag, "i": i}, "abcdef0123", {"writer": tag}, 1)
+''')
+
+
+def test_two_processes_creating_runs_at_once_get_distinct_folders(tmp_path):
+    script = tmp_path / "writer.py"
+    script.write_text(WRITER)
+    go = tmp_path / "go"
+    root = tmp_path / "runs"
+    procs = [subprocess.Popen([sys.executable, str(script), str(root), str(go), tag, "15"], cwd=tmp_path,
+                              stderr=subprocess.PIPE) for tag in ("A", "B")]
+    time.sleep(1.0)  # both interpreters up and waiting
+    go.touch()
+    for p in procs:
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err.decode()[-800:]
+    store = RunStore(root)
+    runs = store.runs()
+    assert len(runs) == 30 and len({r.id for r in runs}) == 30
+    import tomllib
+
+    seen = set()
+    for r in runs:
+        info, cfg, env = r.info(), tomllib.loads((r.path / "config.toml").read_text()), r.environment()
+        assert info["id"] == r.id and env["writer"] == cfg["writer"]  # every file of a folder from one writer
+        seen.add((cfg["writer"], cfg["i"]))
+    assert seen == {(w, i) for w in "AB" for i in range(15)}  # nothing clobbered, nothing lost
+    newest = max(runs, key=lambda r: r.info()["created_ns"])
+    assert store.get("latest").id == newest.id
+    assert [r.info()["created_ns"] for r in runs] == sorted(r.info()["created_ns"] for r in runs)
+
+
+def test_latest_is_the_run_created_last_even_past_ten_runs_in_one_second(tmp_path, monkeypatch):
+    """Ids of runs created in one second end in -1 ... -11; 'latest' must not sort them as text."""
+    clock = {"ns": 1_700_000_000_000_000_000}
+
+    def fake_ns():
+        clock["ns"] += 1000
+        return clock["ns"]
+
+    monkeypatch.setattr(store_mod.time, "time_ns", fake_ns)
+    store = RunStore(tmp_path)
+    made = [store.create("burst", {}, "feedbeef00", {}, 1).id for _ in range(12)]
+    assert made[0].endswith("-burst-feedbe") and made[11] == made[0] + "-11"
+    assert store.get("latest").id == made[-1]
+    assert [r.id for r in store.runs()] == made
+
+
+def test_two_runs_of_one_experiment_at_once_in_one_store(toy_parquet, tmp_path):
+    exp = exp_file(tmp_path, toy_parquet, repetitions=2)
+    env = {**os.environ, "ENGINEBENCH_STORE": str(tmp_path / "runs")}
+    cmd = [sys.executable, "-c", "from enginebench.cli.main import main; main()", "run", str(exp), "-j", "1", "-q"]
+    procs = [subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for _ in range(2)]
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err.decode()[-800:]
+    store = RunStore(tmp_path / "runs")
+    a, b = store.runs()
+    assert a.id != b.id
+    for run in (a, b):
+        assert run.info()["status"] == "finished" and len(run.finished_jobs()) == 4 and leftovers(run) == []
+    assert np.array_equal(values(a.metrics()), values(b.metrics()), equal_nan=True)
+    assert store.get("latest").id == b.id
+
+
+# ----------------------------------------------------------------------------- damaged job files
+@pytest.fixture
+def finished_run(toy_parquet, tmp_path):
+    spec = toy_spec(toy_parquet)
+    run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+    return spec, run
+
+
+def test_a_truncated_job_file_is_refused_by_name_and_recomputed_on_resume(finished_run, tmp_path):
+    spec, run = finished_run
+    store = str(run.store)
+    reference = values(run.metrics())
+    victim = run.jobs_dir / "y__w0__published__krls__r001.parquet"
+    victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
+    others = {p.name: p.stat().st_mtime_ns for p in run.job_files() if p != victim}
+    for args in (["table", run.id, "--format", "csv"], ["runs", "show", run.id]):
+        result = CliRunner().invoke(cli, [*args, "--store", store])
+        assert result.exit_code == 2, result.output
+        lines = result.output.splitlines()  # `runs show` prints the run's header before its metrics
+        (line,) = [x for x in lines if x.startswith("error:")]
+        assert line == lines[-1] and "Traceback" not in result.output
+        assert line.startswith(f"error: run {run.id}: job file {victim} is damaged (")
+        assert line.endswith(f"the other jobs are intact: `enginebench run --resume {run.id}` recomputes this one")
+    assert victim.stem not in run.finished_jobs() and victim.stem in run.finished_jobs(verify=False)
+    assert run.damaged_jobs()[victim.stem].startswith("Could not open Parquet input source")
+    resumed = CliRunner().invoke(cli, ["run", "--resume", run.id, "-j", "1", "-q", "--store", store])
+    assert resumed.exit_code == 0, resumed.output
+    assert run.damaged_jobs() == {}
+    assert {p.name: p.stat().st_mtime_ns for p in run.job_files() if p != victim} == others  # untouched
+    assert np.array_equal(values(run.metrics()), reference, equal_nan=True)
+    assert CliRunner().invoke(cli, ["table", run.id, "--format", "csv", "--store", store]).exit_code == 0
+
+
+def test_every_single_byte_garble_is_detected_or_harmless(finished_run):
+    """Flip one byte at a time: the job is refused as damaged, or it reads back exactly as written.
+
+    Job files carry Parquet page checksums, so a garbled value cannot pass as a result.
+    """
+    _, run = finished_run
+    path = run.jobs_dir / "y__w0__published__naive-mean__r000.parquet"
+    good = path.read_bytes()
+    meta = run.job_meta(path.stem)
+    detected = 0
+    for pos in range(0, len(good), 5):
+        bad = bytearray(good)
+        bad[pos] ^= 0xFF
+        path.write_bytes(bytes(bad))
+        damaged = run.damaged_jobs()
+        if path.stem in damaged:
+            detected += 1
+            with pytest.raises(StoreError, match="is damaged"):
+                run.metrics()
+            continue
+        frame, back = run._read_job(path)
+        assert back == meta, f"byte {pos}: metadata changed silently"
+        path.write_bytes(good)
+        assert frame.equals(run._read_job(path)[0]), f"byte {pos}: metric rows changed silently"
+    path.write_bytes(good)
+    assert detected > 0
+
+
+def test_a_damaged_status_file_is_one_error_line(finished_run):
+    _, run = finished_run
+    (run.path / "run.json").write_text('{"id": "x", "status": ')
+    result = CliRunner().invoke(cli, ["runs", "show", run.id, "--store", str(run.store)])
+    assert result.exit_code == 2
+    (line,) = result.output.splitlines()
+    assert line.startswith(f"error: run {run.id}: run.json unreadable (") and "the run folder is damaged" in line
