@@ -289,3 +289,23 @@ def test_diverged_segments_are_counted_in_the_stored_job(toy, tmp_path):
     metrics = run.metrics()
     diverged = metrics[(metrics["metric"] == "diverged") & (metrics["split"] == "test")]["value"]
     assert list(diverged) == [1.0]  # s3, the second of the two test segments
+
+
+# ----------------------------------------------------------------- a target constant over one segment
+def test_a_target_constant_over_one_segment_imports_and_its_undefined_metrics_are_noted(tmp_path):
+    """Constancy is judged over the whole file (tests/data/malformed/constant_target refuses a file-wide
+    constant); a steady segment is real data: it imports, and R^2 / PPMCC on it are nan with a note."""
+    from enginebench.datasets.importer import import_table
+
+    rows = [(t, 600 + 7 * t, 300.0 + (t % 3)) for t in range(5)] + [(t, 650 + t, 310.0) for t in range(20, 26)]
+    (tmp_path / "data.csv").write_text("t,speed,T_exh\n" + "".join(f"{t},{s},{y}\n" for t, s, y in rows))
+    (tmp_path / "spec.toml").write_text('name = "steady"\nfiles = ["data.csv"]\ntime = "t"\ndt = 1.0\n[columns]\n'
+                                        'speed = { role = "input", unit = "rpm" }\nT_exh = { role = "output", unit = "degC" }\n')
+    ds = import_table(tmp_path / "spec.toml")
+    assert ds.segment_ids == ["data", "data#1"]
+    steady = ds.frame[ds.frame[SEGMENT] == "data#1"]["T_exh"].to_numpy()
+    assert np.all(steady == 310.0)
+    values, notes = compute_metrics([steady], [steady + np.linspace(-1, 1, len(steady))], 305.0)
+    assert np.isnan(values["r2"]) and np.isnan(values["ppmcc"]) and np.isfinite(values["mape"])
+    assert notes["ppmcc"] == "PPMCC is undefined: target constant; no correlation exists"
+    assert values["mae"] == pytest.approx(np.mean(np.abs(np.linspace(-1, 1, len(steady)))))
