@@ -124,6 +124,12 @@ class MTLKRLS(KRLS):
         return pm_params, scaler, scaler.transform(X), y - offset, p_task - offset, offset
 
     def _eval(self, data: Samples, pm_params: dict[str, Any], scaler: StandardScaler) -> np.ndarray:
+        expected = scaler.n_features_in_ - (1 if self.options["pm_feature"] else 0)
+        if data.X.shape[1] != expected:
+            raise MethodError(
+                f"method 'mtl-krls': the data have {data.X.shape[1]} feature columns but the model was trained on "
+                f"{expected}; predict with samples built for the same inputs, mode and window"
+            )
         pm = physical_model(data)
         p = np.concatenate(simulate_rows(pm, pm_params, data))
         X = self._features(data, p)

@@ -30,21 +30,10 @@ def test_builtin_methods_conform(name, options):
             assert f"{check}[{mode}]" in report.passed
 
 
-def test_mtl_krls_conforms_except_the_feature_count_check():
-    """mtl-krls passes every check but one: a wrong feature count reaches sklearn's scaler.
-
-    Its ``_eval`` does not compare the feature count with the training features (krls's
-    ``_eval_features`` does), so the user gets a bare ValueError. That belongs in
-    methods/mtl_krls.py; until then this test records it, and passes outright once fixed.
-    """
-    try:
-        report = check_method(registry.get("mtl-krls"), {**SMALL_GRID, "theta_grid": (-1, 1, 3)})
-    except ConformanceError as exc:
-        assert {check for check, _ in exc.failures} == {"bad-input"}, str(exc)
-        assert all("feature columns" in msg and "ValueError" in msg for _, msg in exc.failures), str(exc)
-        pytest.xfail("mtl-krls raises a bare ValueError on a wrong feature count (methods/mtl_krls.py)")
-    else:
-        assert "determinism[static]" in report.passed and "no-target-leakage[window]" in report.passed
+def test_mtl_krls_conforms():
+    report = check_method(registry.get("mtl-krls"), {**SMALL_GRID, "theta_grid": (-1, 1, 3)})
+    assert "determinism[static]" in report.passed and "no-target-leakage[window]" in report.passed
+    assert "bad-input[static]" in report.passed and not report.skipped
 
 
 def test_simulation_only_methods_are_skipped_with_the_reason():
