@@ -87,6 +87,8 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     out = Console()
     out.print(to_rich(summary, title=f"{spec.name} ({spec.dataset}, {spec.mode})"))
     click.echo(paired_lines(paired_tests(raw, "mae"), "mae"), nl=False)
+    for key, why in result.damaged.items():
+        out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
     if result.n_failed:
         out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench table {result.run.id}' counts them (n_failed).[/yellow]")
     out.print(f"run {result.run.id} stored in {result.run.path}")

@@ -78,7 +78,7 @@ def runs_list(store) -> None:
     for r in found:
         info = r.info()
         cfg = r.config()
-        click.echo(f"{r.id}  {info.get('status', '?'):<11} {info.get('finished_jobs', len(r.finished_jobs()))}/{info.get('n_jobs', '?')} jobs"
+        click.echo(f"{r.id}  {info.get('status', '?'):<11} {info['finished_jobs'] if 'finished_jobs' in info else len(r.finished_jobs(verify=False))}/{info.get('n_jobs', '?')} jobs"
                    f"  {cfg.get('dataset', '?')}  {','.join(cfg.get('methods', []))}")
 
 
@@ -94,7 +94,7 @@ def runs_show(run_ref: str, store) -> None:
 
     run = RunStore(store).get(run_ref)
     info, cfg, env = run.info(), run.config(), run.environment()
-    click.echo(f"run {run.id}: {info.get('status')} ({info.get('finished_jobs', len(run.finished_jobs()))}/{info.get('n_jobs')} jobs, "
+    click.echo(f"run {run.id}: {info.get('status')} ({info['finished_jobs'] if 'finished_jobs' in info else len(run.finished_jobs(verify=False))}/{info.get('n_jobs')} jobs, "
                f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
     click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "
                f"mode {cfg.get('mode')}, windows {cfg.get('windows')}; {cfg.get('repetitions')} repetitions, seed {cfg.get('seed')}")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import itertools
 import shutil
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -158,6 +158,8 @@ class RunResult:
     run: Run
     n_jobs: int
     n_failed: int
+    damaged: dict[str, str] = field(default_factory=dict)
+    """On resume: job files found damaged (key -> why) and computed again."""
 
 
 def run_experiment(
@@ -198,7 +200,8 @@ def run_experiment(
         run = resume
         for stale in run.jobs_dir.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
             stale.unlink(missing_ok=True)
-        finished = run.finished_jobs()
+        damaged = run.damaged_jobs()
+        finished = run.finished_jobs(verify=False) - set(damaged)
         todo = [j for j in jobs if j.key not in finished]
         run.update_info(status="running", resumed=run.info().get("resumed", 0) + 1)
     n_failed = 0
@@ -224,4 +227,4 @@ def run_experiment(
             shutil.rmtree(spill_dir, ignore_errors=True)
     n_failed = sum(run.job_meta(j.key).get("status") != "ok" for j in jobs) if resume is not None else n_failed
     run.update_info(status="finished", finished_jobs=done, failed_jobs=n_failed)
-    return RunResult(run=run, n_jobs=len(jobs), n_failed=n_failed)
+    return RunResult(run=run, n_jobs=len(jobs), n_failed=n_failed, damaged=damaged if resume is not None else {})

@@ -106,7 +106,7 @@ def r2(y_true: object, y_pred: object) -> float:
     ss_tot = float(np.sum((t - t.mean()) ** 2))
     if ss_tot == 0.0:
         raise DataError(
-            f"R^2 is undefined: target constant (all {t.size} values equal {t[0]!r}); "
+            f"R^2 is undefined: target constant (all {t.size} values equal {float(t[0])!r}); "
             "report MAE or RMSE instead"
         )
     return 1.0 - float(np.sum((t - p) ** 2)) / ss_tot

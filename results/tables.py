@@ -60,10 +60,30 @@ def summarize(metrics: pd.DataFrame, interval: str = "t", level: float = 0.95, s
                      q50, q75 - q25, len(v), 0, interval))
     out = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
     if not failed.empty:
+        out = pd.concat([out, _all_failed_rows(out, failed, interval)], ignore_index=True)
         out = out.drop(columns="n_failed").merge(failed.reset_index(), on=KEYS[:-1], how="left")
         out["n_failed"] = out["n_failed"].fillna(0).astype(int)
         out = out[SUMMARY_COLUMNS]
     return out.sort_values(["target", "window", "split", "method", "metric"], kind="stable").reset_index(drop=True)
+
+
+def _all_failed_rows(out: pd.DataFrame, failed: pd.Series, interval: str) -> pd.DataFrame:
+    """Empty (nan, n = 0) rows for methods whose every repetition failed, so tables still list them.
+
+    They take the splits and metrics that other methods of the same block report (MAE on
+    the test part when no method of the block succeeded).
+    """
+    block = KEYS[:4]
+    present = set(map(tuple, out[KEYS[:-1]].drop_duplicates().to_numpy().tolist())) if len(out) else set()
+    rows = []
+    for key in failed.index:
+        if tuple(key) in present:
+            continue
+        others = out[(out[block] == pd.Series(dict(zip(block, key[:4])))).all(axis=1)] if len(out) else out
+        cells = others[["split", "metric"]].drop_duplicates().itertuples(index=False) if len(others) else [("test", "mae")]
+        for split, metric in cells:
+            rows.append((*key, split, metric, *[float("nan")] * 6, 0, 0, interval))
+    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS).astype(out.dtypes.to_dict()) if rows else out.iloc[:0]
 
 
 # -- wide tables --------------------------------------------------------------------
@@ -90,7 +110,8 @@ def wide(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> tup
     ]
     index = ["target", "mode", "window", "split", "method"]
     cells = s.pivot_table(index=index, columns="metric", values="cell", aggfunc="first", sort=False)[present]
-    means = s.pivot_table(index=index, columns="metric", values="mean", aggfunc="first", sort=False)[present]
+    means = (s.pivot_table(index=index, columns="metric", values="mean", aggfunc="first", sort=False)
+             .reindex(index=cells.index, columns=present))  # rows of all-failed methods are all nan
     bold = pd.DataFrame(False, index=means.index, columns=present)
     for _, block in means.groupby(level=["target", "mode", "window", "split"], sort=False):
         for m in present:
@@ -100,9 +121,12 @@ def wide(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> tup
             lower = METRICS[m].lower_is_better if m in METRICS else not m.startswith("skill")
             best = col.idxmin() if lower else col.idxmax()
             bold.loc[best, m] = True
-    n = s.pivot_table(index=index, values="n_repeats", aggfunc="max", sort=False)
+    n = s.pivot_table(index=index, values=["n_repeats", "n_failed"], aggfunc="max", sort=False).reindex(cells.index)
     cells.insert(0, "n", n["n_repeats"].astype(int).astype(str))
     bold.insert(0, "n", False)
+    if (n["n_failed"] > 0).any():  # failed repetitions are excluded from the statistics: say how many
+        cells.insert(1, "failed", n["n_failed"].astype(int).astype(str))
+        bold.insert(1, "failed", False)
     return cells.fillna("n/a"), bold
 
 

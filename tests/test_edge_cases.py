@@ -254,14 +254,17 @@ def test_non_finite_predictions_fail_the_job_and_are_never_averaged(toy_parquet,
     assert np.isfinite(csv["mean"].dropna()).all()
 
 
-@pytest.mark.xfail(strict=True, reason="results/tables.py: a method whose every job failed has no ok rows, so "
-                                       "summarize() drops it and its n_failed with it")
 def test_a_method_that_always_fails_still_shows_its_failures_in_the_table(toy_parquet, tmp_path):
     spec = spec_for(toy_parquet, {"naive-mean": {}, "edge-all-nan": {}}, repetitions=2)
     result = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1)
     assert result.n_failed == 2
     summary = summarize(result.run.metrics())
-    assert set(summary[summary["method"] == "edge-all-nan"]["n_failed"]) == {2}
+    failing = summary[summary["method"] == "edge-all-nan"]
+    assert set(failing["n_failed"]) == {2} and set(failing["n_repeats"]) == {0} and failing["mean"].isna().all()
+    assert set(failing["metric"]) == set(summary[summary["method"] == "naive-mean"]["metric"])
+    md = to_markdown(summary)
+    row = next(line for line in md.splitlines() if "edge-all-nan" in line)
+    assert "| 0 | 2 | n/a |" in row  # n = 0 repetitions, 2 failed, no statistics
 
 
 # ----------------------------------------------------------------- diverged simulations in a run

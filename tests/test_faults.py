@@ -297,6 +297,7 @@ def test_a_truncated_job_file_is_refused_by_name_and_recomputed_on_resume(finish
     assert run.damaged_jobs()[victim.stem].startswith("Could not open Parquet input source")
     resumed = CliRunner().invoke(cli, ["run", "--resume", run.id, "-j", "1", "-q", "--store", store])
     assert resumed.exit_code == 0, resumed.output
+    assert f"job file {victim.stem}.parquet was damaged (Could not open Parquet input source" in " ".join(resumed.output.split())
     assert run.damaged_jobs() == {}
     assert {p.name: p.stat().st_mtime_ns for p in run.job_files() if p != victim} == others  # untouched
     assert np.array_equal(values(run.metrics()), reference, equal_nan=True)
