@@ -32,7 +32,7 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
     (measured vs predicted scatters, time trends; simulation runs: trajectories with MoE
     gate bands). A learning-curve run gets its curve instead.
     """
-    from enginebench.results.report import write_report
+    from enginebench.experiments.report import write_report
     from enginebench.results.store import RunStore
 
     load_plugins(plugins)
@@ -75,7 +75,7 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
     with tempfile.TemporaryDirectory(prefix="enginebench-report-") as tmp:
         report_dir = None
         if with_report:
-            from enginebench.results.report import write_report
+            from enginebench.experiments.report import write_report
 
             written = write_report(run, tmp, figures=figures)
             for note in written.notes:

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.samples import SamplePool, Samples
-from enginebench.errors import EngineBenchError
+from enginebench.errors import EngineBenchError, MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.methods.base import Method
@@ -79,6 +79,33 @@ def subsample_segments(sizes: np.ndarray, size: int, rng: np.random.Generator) -
     return np.concatenate([np.arange(edges[k], edges[k + 1]) for k in np.sort(keep)])
 
 
+def training_samples(spec: ExperimentSpec, problem: Problem, repetition: int, split: str) -> Samples:
+    """A repetition's training subsample: it depends only on (seed, repetition, split), so methods pair up.
+
+    In simulation mode a trajectory is only usable whole, so whole segments are drawn.
+    """
+    sub_rng = np.random.default_rng([spec.seed, repetition, stable_int(split)])
+    if spec.mode == "simulation":
+        return problem.train.take(subsample_segments(problem.train.segment_sizes, spec.train_size, sub_rng))
+    return problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
+
+
+def method_rng(spec: ExperimentSpec, job: Job) -> np.random.Generator:
+    """The generator of a job's own draws: depends on (seed, repetition, method)."""
+    return np.random.default_rng([spec.seed, job.repetition, stable_int(job.method)])
+
+
+def refit_stored_job(ctx: Context, job: Job, meta: dict[str, Any], train: Samples) -> Any:
+    """Fit a stored job's method again on ``train`` with the hyperparameters the job selected.
+
+    For figures and reports: a deterministic method reproduces the job's model exactly
+    (selection is not replayed). MethodError when the job failed in the run.
+    """
+    if meta.get("status") != "ok":
+        raise MethodError(f"repetition {job.repetition} failed in the run ({meta.get('reason', '?')})")
+    return ctx.methods[job.method].fit(train, meta.get("params", {}), method_rng(ctx.spec, job))
+
+
 PREDICT_BATCH_ROWS = 20_000
 """Rows predicted at a time in static and window modes: bounds the feature and kernel blocks of a job."""
 
@@ -122,12 +149,8 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     timings: dict[str, float] = {}
     rows: list[dict[str, Any]] = []
     try:
-        sub_rng = np.random.default_rng([spec.seed, job.repetition, stable_int(job.split)])
-        if spec.mode == "simulation":  # a trajectory is only usable whole
-            train = problem.train.take(subsample_segments(problem.train.segment_sizes, spec.train_size, sub_rng))
-        else:
-            train = problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
-        rng = np.random.default_rng([spec.seed, job.repetition, stable_int(job.method)])
+        train = training_samples(spec, problem, job.repetition, job.split)
+        rng = method_rng(spec, job)
         t0 = time.perf_counter()
         validation = problem.parts["validation"].materialize() if "validation" in problem.parts else None
         params, search = select(method, train, spec.selection, rng, validation)

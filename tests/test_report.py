@@ -13,7 +13,7 @@ from matplotlib.image import imread
 
 from enginebench.cli.main import cli
 from enginebench.results import tables
-from enginebench.results.report import time_trend_plot, write_report
+from enginebench.experiments.report import time_trend_plot, write_report
 from enginebench.results.store import RunStore
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -121,7 +121,7 @@ def test_repetitions_refit_on_different_training_rows(static_run, tmp_path):
 
 def test_time_trend_breaks_lines_between_segments_and_refuses_mismatched_rows(tmp_path, monkeypatch):
     from enginebench.errors import MethodError
-    from enginebench.results.report import Predictions
+    from enginebench.experiments.report import Predictions
 
     t = np.r_[np.arange(5.0), 100 + np.arange(5.0)]
     seg = np.r_[np.zeros(5, int), np.ones(5, int)]

@@ -160,7 +160,9 @@ def test_failed_jobs_are_counted_not_averaged(toy_parquet, tmp_path):
     assert meta["reason"] == ("FloatingPointError: test-nan returned non-finite predictions for 1 segment(s) "
                               "of the test part (first: s3)")
     summary = summarize(result.run.metrics())
-    assert set(summary["method"]) == {"naive-mean"}
+    failing = summary[summary["method"] == "test-nan"]  # listed with its failures, never averaged in
+    assert set(failing["n_repeats"]) == {0} and set(failing["n_failed"]) == {3} and failing["mean"].isna().all()
+    assert set(summary[summary["method"] == "naive-mean"]["n_failed"]) == {0}
 
 
 def test_builtin_specs_parse():

@@ -107,7 +107,7 @@ def refit_predictions(
     draws afresh (selection is not replayed). Parts longer than ``max_rows`` are thinned
     to evenly spaced rows. Returns the predictions and notes on what was skipped.
     """
-    from enginebench.experiments.jobs import Job, stable_int, subsample
+    from enginebench.experiments.jobs import Job, refit_stored_job, training_samples
     from enginebench.experiments.runner import prepare
     from enginebench.experiments.spec import from_dict
 
@@ -127,8 +127,7 @@ def refit_predictions(
         if part not in problem.parts:
             notes.append(f"{target}, window {window:g} s, split {split}: no {part!r} part; not drawn")
             continue
-        sub_rng = np.random.default_rng([spec.seed, repetition, stable_int(split)])
-        train = problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
+        train = training_samples(spec, problem, repetition, split)
         evaluated = problem.parts[part]
         n = len(evaluated)
         rows = np.arange(n) if n <= max_rows else np.unique(np.linspace(0, n - 1, max_rows).round().astype(np.int64))
@@ -142,18 +141,8 @@ def refit_predictions(
             where = f"{name} ({target}, window {window:g} s, {split}, repetition {repetition})"
             job = Job(target, window, split, name, repetition)
             try:
-                meta = run.job_meta(job.key)
-            except EngineBenchError as exc:
-                notes.append(f"{where}: {exc}; not drawn")
-                continue
-            if meta.get("status") != "ok":
-                notes.append(f"{where}: failed in the run ({meta.get('reason', '?')}); not drawn")
-                continue
-            method = ctx.methods[name]
-            rng = np.random.default_rng([spec.seed, repetition, stable_int(name)])
-            try:
-                fitted = method.fit(train, meta.get("params", {}), rng)
-                preds = method.predict(fitted, shown.without_targets())
+                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
+                preds = ctx.methods[name].predict(fitted, shown.without_targets())
                 pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0]
                                        for p, s in zip(preds, shown.segments)])
             except REFIT_ERRORS as exc:
