@@ -1,7 +1,10 @@
 """Exact kernel regularised least squares with a Gaussian kernel (the seeds' KRLS).
 
-The whole (gamma, lambda) grid costs one eigendecomposition of the training kernel per
-gamma: every lambda is then a per-component division (see ``methods/kernels.py``).
+The whole (gamma, lambda) grid costs at most one Householder tridiagonalisation of the
+training kernel per gamma (a third of an eigendecomposition): every lambda is then an
+O(n) tridiagonal solve. Where a shifted Lanczos basis certifies every lambda within a
+few dozen matrix-vector products (small or large gamma), not even that
+(``ridge_solutions`` in ``methods/kernels.py``).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from sklearn.preprocessing import StandardScaler
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, check_log_grid_option, log_grid, split_rows
-from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
+from enginebench.methods.kernels import check_positive, gaussian, make_scaler, ridge_solutions, sq_distances
 
 
 SOLVERS = ("auto", "exact", "falkon")
@@ -43,8 +46,8 @@ class KRLSFitted:
 class KRLS(Method):
     """Gaussian-kernel regularised least squares.
 
-    Exact by eigendecomposition up to ``exact_max_rows`` training rows (one
-    decomposition per gamma serves every lambda); above that, or with
+    Exact up to ``exact_max_rows`` training rows (one tridiagonalisation per gamma serves
+    every lambda, see ``ridge_solutions``); above that, or with
     ``solver = "falkon"``, Nystroem centres plus preconditioned conjugate gradient
     (FALKON, in torch, CPU or CUDA) without ever forming the n x n kernel matrix.
     """
@@ -52,7 +55,7 @@ class KRLS(Method):
     name = "krls"
     family = "data-driven"
     modes = frozenset({"static", "window"})
-    summary = "Gaussian-kernel regularised least squares (exact, one eigendecomposition per gamma)"
+    summary = "Gaussian-kernel regularised least squares (exact, one tridiagonalisation per gamma)"
     grid_options: tuple[str, ...] = ("gamma_grid", "lambda_grid")
 
     @classmethod
@@ -121,8 +124,7 @@ class KRLS(Method):
             solver = self._falkon(gamma, lam).fit(Xs, yc, rng)
             return KRLSFitted(scaler=scaler, X_train=solver.centres_, alpha=solver.coef_, gamma=gamma, lam=lam, y_mean=y_mean,
                               solver="falkon")
-        spectral = Spectral.from_kernel(gaussian(sq_distances(Xs), gamma), overwrite=True)
-        alpha = spectral.ridge_alpha(yc, np.array([lam]))[:, 0, :]
+        alpha = ridge_solutions(gaussian(sq_distances(Xs), gamma), yc, np.array([lam]), overwrite=True)[0][:, 0, :]
         return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha, gamma=gamma, lam=lam, y_mean=y_mean)
 
     def predict(self, fitted: KRLSFitted, data: Samples) -> list[np.ndarray]:
@@ -140,8 +142,9 @@ class KRLS(Method):
     ) -> np.ndarray:
         """Predictions for every grid point, (n_grid, n_rows, n_targets), in the order of ``grid``.
 
-        Squared distances are computed once; per distinct gamma one eigendecomposition
-        serves all of that gamma's lambdas in one vectorised solve.
+        Squared distances are computed once; per distinct gamma one call of
+        ``ridge_solutions`` (Lanczos, Cholesky or one tridiagonalisation) serves all of that
+        gamma's lambdas.
         """
         pairs = [_params(p) for p in grid]
         scaler, Xs, yc, y_mean = self._train_arrays(train)
@@ -163,11 +166,12 @@ class KRLS(Method):
         D_eval = sq_distances(Xe, Xs)
         K_train = np.empty_like(D_train)
         K_eval = np.empty_like(D_eval)
+        n, k = yc.shape
         for gamma in dict.fromkeys(gammas.tolist()):  # distinct gammas, in order of first appearance
             idx = np.flatnonzero(gammas == gamma)
-            spectral = Spectral.from_kernel(gaussian(D_train, gamma, out=K_train), overwrite=True)
-            coeffs = spectral.ridge_coeffs(spectral.project(yc), lambdas[idx])
-            out[idx] = spectral.predict_coeffs(gaussian(D_eval, gamma, out=K_eval), coeffs)
+            alpha, _ = ridge_solutions(gaussian(D_train, gamma, out=K_train), yc, lambdas[idx], overwrite=True)
+            pred = gaussian(D_eval, gamma, out=K_eval) @ alpha.reshape(n, len(idx) * k)
+            out[idx] = pred.reshape(len(Xe), len(idx), k).transpose(1, 0, 2)
         out += y_mean
         return out
 
