@@ -336,3 +336,100 @@ def test_eigendecomposition_falls_back_when_divide_and_conquer_fails(monkeypatch
     spectral = Spectral.from_kernel(Q.copy(), overwrite=True)
     assert calls == ["evd", "evr"]
     np.testing.assert_allclose(spectral.V @ np.diag(spectral.s) @ spectral.V.T, Q, atol=1e-10)
+
+
+# -- the eigendecomposition-free ridge path (Lanczos / Cholesky / Householder) -------------
+
+def _drift_problem(n: int, d: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Inputs with a slow drift and a smooth target, like the benchmark's (blocked folds extrapolate)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / n
+    X = rng.normal(size=(n, d)) + 0.5 * np.sin(2 * np.pi * np.outer(t, np.arange(1, d + 1)))
+    y = np.sin(X @ rng.normal(size=d) / np.sqrt(d)) + 0.3 * X[:, 0] * X[:, 1] + 0.1 * rng.normal(size=n)
+    return X, y
+
+
+@pytest.mark.parametrize("gamma", [1e-4, 1e-2, 0.1, 1.0, 30.0])
+def test_ridge_routes_agree_with_the_eigendecomposition(gamma: float) -> None:
+    from enginebench.methods.kernels import cholesky_ridge, householder_ridge, lanczos_ridge, ridge_solutions
+
+    X, y = _drift_problem(300, 5, 3)
+    K = gaussian(sq_distances(X[:240]), gamma)
+    Ke = gaussian(sq_distances(X[240:], X[:240]), gamma)
+    B = np.stack([y[:240] - y[:240].mean(), np.cos(X[:240, 2])], axis=1)
+    lambdas = np.logspace(-4, 4, 41)
+    ref = Spectral.from_kernel(K).ridge_predict(Ke, B, lambdas)
+    scale = np.abs(B).max()
+
+    def predictions(alpha: np.ndarray) -> np.ndarray:
+        return np.einsum("mn,nlk->lmk", Ke, alpha)
+
+    np.testing.assert_allclose(predictions(householder_ridge(K, B, lambdas)), ref, rtol=0, atol=1e-8 * scale)
+    chol = cholesky_ridge(K, B, lambdas[:3])
+    np.testing.assert_allclose(predictions(chol), ref[:3], rtol=0, atol=1e-8 * scale)
+    X0, ok, steps = lanczos_ridge(K, B[:, 0], lambdas, maxiter=240)
+    assert 1 <= steps <= 240
+    # a certified lambda is as good as the direct solvers; an uncertified one is not returned by ridge_solutions
+    np.testing.assert_allclose((Ke @ X0)[:, ok].T, ref[ok, :, 0], rtol=0, atol=1e-8 * scale)
+    for budget in (0, 8, None):
+        alpha, counts = ridge_solutions(K, B, lambdas, krylov_maxiter=budget)
+        assert counts["krylov"] + counts["cholesky"] + counts["householder"] == B.shape[1] * len(lambdas)
+        np.testing.assert_allclose(predictions(alpha), ref, rtol=0, atol=1e-8 * scale)
+    alpha, _ = ridge_solutions(K.copy(), B, lambdas, overwrite=True)
+    np.testing.assert_allclose(predictions(alpha), ref, rtol=0, atol=1e-8 * scale)
+
+
+def test_ridge_solutions_uses_every_route_on_the_benchmark_grid() -> None:
+    """Across the 41-gamma grid all three routes occur, and each lambda is solved exactly once."""
+    from enginebench.methods.kernels import ridge_solutions
+
+    X, y = _drift_problem(400, 8, 0)
+    D = sq_distances(X)
+    lambdas = np.logspace(-4, 4, 41)
+    used = {"krylov": 0, "cholesky": 0, "householder": 0}
+    for gamma in np.logspace(-4, 4, 21):
+        _, counts = ridge_solutions(gaussian(D, gamma), (y - y.mean())[:, None], lambdas, krylov_maxiter=24)
+        for key in used:
+            used[key] += counts[key]
+    assert all(v > 0 for v in used.values()), used
+
+
+def test_householder_falls_back_to_the_clipped_spectrum_when_rounding_makes_k_indefinite() -> None:
+    from enginebench.methods.kernels import householder_ridge
+
+    rng = np.random.default_rng(5)
+    V, _ = np.linalg.qr(rng.normal(size=(30, 30)))
+    s = np.r_[-1e-10, np.logspace(-6, 1, 29)]  # one slightly negative eigenvalue, as rounding leaves
+    K = (V * s) @ V.T
+    K = 0.5 * (K + K.T)
+    b = rng.normal(size=(30, 1))
+    lambdas = np.array([1e-12, 1e-3])
+    alpha = householder_ridge(K, b, lambdas)
+    # lambda 1e-12: K + lambda I is indefinite; the clipped spectral solution (huge, ~1e11) is returned
+    np.testing.assert_allclose(alpha[:, 0], Spectral.from_kernel(K).ridge_alpha(b, lambdas[:1])[:, 0], rtol=1e-6)
+    # lambda 1e-3: positive definite, the tridiagonal solve equals a direct dense solve
+    np.testing.assert_allclose(alpha[:, 1], np.linalg.solve(K + 1e-3 * np.eye(30), b), rtol=1e-10)
+
+
+def test_grid_matches_kernel_ridge_per_blocked_fold() -> None:
+    """predict_grid over a wide 9 x 9 grid equals sklearn's KernelRidge (centred target) on each blocked fold."""
+    from enginebench.datasets.samples import Samples, SegmentSamples
+
+    X, y = _drift_problem(250, 4, 11)
+    names = tuple(f"x{j}" for j in range(X.shape[1]))
+
+    def samples(rows: np.ndarray) -> Samples:
+        seg = SegmentSamples(id="all", X=X[rows], rows=rows, U=X[rows], t=rows.astype(float), y=y[rows, None])
+        return Samples(segments=(seg,), mode="static", window=0.0, dt=1.0, feature_names=names,
+                       input_names=names, target_names=("y",))
+
+    method = KRLS(standardize=False, center_target=True)
+    grid = grid_points({"gamma": np.logspace(-4, 4, 9), "lambda": np.logspace(-4, 4, 9)})
+    for fold in range(5):
+        test = np.arange(fold * 50, fold * 50 + 50)
+        train = np.setdiff1d(np.arange(250), test)
+        out = method.predict_grid(samples(train), samples(test).without_targets(), grid, RNG)
+        mean = y[train].mean()
+        for k, p in enumerate(grid):
+            ref = _kr(X[train], y[train] - mean, X[test], p["gamma"], p["lambda"]) + mean
+            np.testing.assert_allclose(out[k, :, 0], ref, rtol=0, atol=1e-8 * np.abs(y).max(), err_msg=str(p))
