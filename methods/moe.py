@@ -20,6 +20,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
+from scipy.signal import savgol_filter
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import DataError, MethodError
@@ -33,7 +34,7 @@ HYPERPARAMETERS: dict[str, Any] = {
     "beta2": 1.0,
     "k": 1.0,
     "gate_hidden": 16,
-    "lr": 1e-2,
+    "lr": 1e-3,
     "epochs": 100,
 }
 """Defaults of the searched hyperparameters (small, so that a fit takes seconds)."""
@@ -65,6 +66,14 @@ class MoEFitted:
     probe: np.ndarray
     """Standardised training scheduler points used for the frozen-stability verdict."""
     loss_history: list[float] = field(default_factory=list)
+    derived: tuple[tuple[str, str, int], ...] = ()
+    """Input derivatives among the regressors: (name, input column, order), e.g. ("dCOL/dt", "COL", 1).
+    Their statistics follow the raw inputs' in ``u_mean`` / ``u_scale``."""
+
+    @property
+    def augmented_names(self) -> tuple[str, ...]:
+        """The raw inputs followed by the derived input derivatives (columns of ``u_mean``)."""
+        return self.input_names + tuple(d[0] for d in self.derived)
 
     @property
     def scheduler_names(self) -> tuple[str, ...]:
@@ -89,6 +98,10 @@ class MoE(Method):
             "scheduler": None,  # input names that schedule gate and experts; None = all inputs
             "scheduler_state": False,  # also schedule on the state (quasi-LPV)
             "expert_inputs": None,  # input names in the regressors [z; u; 1]; None = all inputs
+            # input derivatives added to the regressors (seed 003's u_WF = [dNR, dNR', dNR'', COL, COL']):
+            # {column: highest order 1 or 2}, from a Savitzky-Golay fit over derivative_window seconds
+            "input_derivatives": None,
+            "derivative_window": 2.0,
             "bias": True,
             "signs": "stable",  # "stable" (own-state coefficients < 0), "none", or {column: "+"/"-"}
             "competitive": "alpha2",  # competitive-term weights: seed eq. 4c alpha^2, or "alpha"
@@ -100,6 +113,8 @@ class MoE(Method):
             "input_interp": "linear",  # inputs between samples: "linear" or "hold"
             "envelope": 10.0,  # divergence when y leaves [min - e*range, max + e*range] of training
             "probe_points": 512,
+            "clip_schedulers": True,
+            "init": "lstsq",  # experts start at the least-squares linear model (plus small scheduled parts), or "random"  # hold schedulers at the edge of their training range when simulating
             "device": "auto",  # "auto" | "cpu" | "cuda"
             "dtype": "float32",  # or "float64"
             "cpu_threads": 1,  # torch intra-op threads on CPU while fitting/simulating; None = leave as is
@@ -115,16 +130,19 @@ class MoE(Method):
             "device": ("auto", "cpu", "cuda"),
             "dtype": ("float32", "float64"),
             "tv_order": (0, 1),
+            "init": ("lstsq", "random"),
         }
         for key, allowed in choices.items():
             if o[key] not in allowed:
                 raise MethodError(f"method 'moe': option {key}={o[key]!r}; use one of {', '.join(map(repr, allowed))}")
+        if not isinstance(o["clip_schedulers"], bool):
+            raise MethodError(f"method 'moe': option clip_schedulers={o['clip_schedulers']!r} must be true or false")
         for key in ("expert_hidden", "batch_size", "probe_points"):
             if not (isinstance(o[key], (int, np.integer)) and o[key] >= 1):
                 raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a positive integer")
         if o["cpu_threads"] is not None and not (isinstance(o["cpu_threads"], (int, np.integer)) and o["cpu_threads"] >= 1):
             raise MethodError(f"method 'moe': option cpu_threads={o['cpu_threads']!r} must be a positive integer or None")
-        for key in ("tv_alpha", "envelope"):
+        for key in ("tv_alpha", "envelope", "derivative_window"):
             if not (isinstance(o[key], (int, float)) and np.isfinite(o[key]) and o[key] > 0):
                 raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a positive number")
         if not (o["signs"] in ("stable", "none") or isinstance(o["signs"], Mapping)):
@@ -136,6 +154,15 @@ class MoE(Method):
             for col, word in o["signs"].items():
                 if word not in _SIGN_WORDS:
                     raise MethodError(f"method 'moe': option signs[{col!r}]={word!r}; use '+', '-' or 'free'")
+        if o["input_derivatives"] is not None:
+            if not isinstance(o["input_derivatives"], Mapping) or not all(
+                isinstance(c, str) and isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n in (1, 2)
+                for c, n in o["input_derivatives"].items()
+            ):
+                raise MethodError(
+                    f"method 'moe': option input_derivatives={o['input_derivatives']!r} must map input columns to "
+                    "an order 1 or 2, e.g. {'COL': 1, 'NR': 2}"
+                )
         for key in ("scheduler", "expert_inputs"):
             if o[key] is not None and (isinstance(o[key], str) or not all(isinstance(c, str) for c in o[key])):
                 raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a list of input column names or None")
@@ -147,9 +174,11 @@ class MoE(Method):
             "n_experts": np.array([2, 3, 4]),
             "beta1": np.array([1.0]),
             "beta2": np.array([0.1, 1.0]),
-            "k": np.array([1.0, 10.0]),
+            "k": np.array([1.0]),
             "gate_hidden": np.array([16]),
-            "lr": np.array([1e-2]),
+            # from the least-squares warm start a small rate refines; a large one may trade
+            # simulation accuracy for derivative fit: the validation RMAE decides
+            "lr": np.array([1e-3, 1e-2]),
             "epochs": np.array([HYPERPARAMETERS["epochs"]]),
         }
 
@@ -159,11 +188,15 @@ class MoE(Method):
         hp = resolve_params(params)
         o = self.options
         sched_in = _names(o["scheduler"], train.input_names, "scheduler")
-        expert_in = _names(o["expert_inputs"], train.input_names, "expert_inputs")
+        derived = _derived_columns(o["input_derivatives"], train.input_names)
+        names = tuple(train.input_names) + tuple(d[0] for d in derived)
+        expert_in = _names(o["expert_inputs"], names, "expert_inputs")
+        expert_in += [d[0] for d in derived if d[0] not in expert_in]  # asked-for derivatives always join
         if not sched_in and not o["scheduler_state"]:
             raise MethodError("method 'moe': no scheduler: name at least one input in option scheduler or set scheduler_state=True")
         sign = _sign_matrix(o["signs"], train.target_names, expert_in, o["bias"])
         U, Y, T = _training_segments(train)
+        U = [_augment(u, t, derived, train.input_names, o["derivative_window"]) for u, t in zip(U, T)]
         U_all, Y_all = np.concatenate(U), np.concatenate(Y)
         u_mean, u_scale = U_all.mean(0), _scale(U_all)
         y_mean, y_scale = Y_all.mean(0), _scale(Y_all)
@@ -181,7 +214,7 @@ class MoE(Method):
         Us = (U_all - u_mean) / u_scale
         Z_all = np.concatenate(Z)
         si = [train.input_names.index(c) for c in sched_in]
-        ei = [train.input_names.index(c) for c in expert_in]
+        ei = [names.index(c) for c in expert_in]
         V = np.hstack([Us[:, si]] + ([Z_all] if o["scheduler_state"] else []))
         X = np.hstack([Z_all, Us[:, ei]] + ([np.ones((len(Z_all), 1))] if o["bias"] else []))
 
@@ -190,9 +223,15 @@ class MoE(Method):
         net = MixtureOfExperts(
             V.shape[1], len(train.target_names), X.shape[1], hp["n_experts"], o["expert_hidden"], hp["gate_hidden"],
             torch.as_tensor(sign), hp["k"], gen, dtype,
-        ).to(device)
+        )
+        if o["init"] == "lstsq":
+            warm_start(net, X, dZ_all / d_scale, sign, hp["k"])
+        net = net.to(device)
         with _cpu_threads(o["cpu_threads"], device):
             history = _train(net, V, X, dZ_all / d_scale, hp, o, gen, device, dtype)
+        if o["clip_schedulers"]:
+            net.v_lo.copy_(torch.as_tensor(V.min(0), dtype=dtype))
+            net.v_hi.copy_(torch.as_tensor(V.max(0), dtype=dtype))
         n_probe = min(o["probe_points"], len(V))
         probe = V[np.sort(rng.choice(len(V), size=n_probe, replace=False))]
         return MoEFitted(
@@ -201,7 +240,7 @@ class MoE(Method):
             u_mean=u_mean, u_scale=u_scale, y_mean=y_mean, y_scale=y_scale, d_scale=d_scale,
             y_min=Y_all.min(0), y_max=Y_all.max(0),
             weights={k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()},
-            probe=probe, loss_history=history,
+            probe=probe, loss_history=history, derived=derived,
         )
 
     # -- prediction -------------------------------------------------------------------------
@@ -301,7 +340,7 @@ def local_coefficients(fitted: MoEFitted, points: np.ndarray) -> dict[str, np.nd
         G = net.coefficients(v).double().numpy()  # (P, M, k, q)
         gate = net.gate(v).double().numpy()
     k, ne = len(fitted.target_names), len(fitted.expert_inputs)
-    ei = [fitted.input_names.index(c) for c in fitted.expert_inputs]
+    ei = [fitted.augmented_names.index(c) for c in fitted.expert_inputs]
     u_mean, u_scale = fitted.u_mean[ei], fitted.u_scale[ei]
     row = (fitted.y_scale * fitted.d_scale)[:, None]  # dy_j/dt = y_scale_j d_scale_j (G [z; u; 1])_j
     A = G[..., :k] * row / fitted.y_scale
@@ -377,7 +416,7 @@ def _simulate(
     device, dtype = _device(o["device"]), _dtype(o["dtype"])
     lens = np.array([len(s.U) for s in segs])
     S, L, k = len(segs), int(lens.max()), len(fitted.target_names)
-    U = np.empty((S, L, len(col)))
+    U = np.empty((S, L, len(fitted.augmented_names)))
     H = np.zeros((S, L - 1))
     z0 = np.empty((S, k))
     for j, s in enumerate(segs):
@@ -386,6 +425,7 @@ def _simulate(
         u = s.U[:, col]
         if not (np.isfinite(u).all() and np.isfinite(s.y0).all()):
             raise MethodError(f"method 'moe': segment {s.id!r} holds NaN or inf in its inputs or y0; clean or drop it")
+        u = _augment(u, s.t, fitted.derived, fitted.input_names, o["derivative_window"])
         U[j, : len(u)], U[j, len(u) :] = u, u[-1]
         h = np.diff(s.t)
         if (h <= 0).any():
@@ -403,7 +443,7 @@ def _simulate(
         hi=as_t((fitted.y_max + o["envelope"] * span - fitted.y_mean) / fitted.y_scale),
         d_scale=as_t(fitted.d_scale),
         si=[fitted.input_names.index(c) for c in fitted.scheduler_inputs],
-        ei=[fitted.input_names.index(c) for c in fitted.expert_inputs],
+        ei=[fitted.augmented_names.index(c) for c in fitted.expert_inputs],
         record_gate=record_gate,
     )
     if stepwise is None:
@@ -624,6 +664,72 @@ def _training_segments(train: Samples) -> tuple[list[np.ndarray], list[np.ndarra
     if not U:
         raise MethodError("method 'moe': the training samples are empty; give at least one segment")
     return U, Y, T
+
+
+def warm_start(net: MixtureOfExperts, X: np.ndarray, D: np.ndarray, sign: np.ndarray, k: float, shrink: float = 0.1) -> np.ndarray:
+    """Start every expert at the least-squares linear model D ~ X theta^T (returns theta, (k_out, q)).
+
+    Fitting scheduled coefficients on derivative targets from a random start leaves the
+    slow part of the dynamics (the pole and static gain that dominate an open-loop
+    simulation) poorly determined: it carries little of the derivative's variance. The
+    global linear fit pins it down in closed form; each expert's output bias is set to it
+    (through the inverse of the signed softplus, a constrained coefficient of the wrong sign
+    starting at a small value of the right one) and its scheduled part is scaled by
+    ``shrink``, so Adam refines a good LTI model into an LPV mixture instead of searching
+    from noise.
+    """
+    ridge = 1e-6 * np.trace(X.T @ X) / X.shape[1]
+    theta = np.linalg.solve(X.T @ X + ridge * np.eye(X.shape[1]), X.T @ D).T  # (k_out, q)
+    raw = theta.copy()
+    on = sign != 0
+    mag = np.maximum(sign[on] * theta[on], 1e-2)  # the magnitude the constrained entry must carry
+    raw[on] = np.log(np.expm1(np.minimum(k * mag, 30.0))) / k + np.where(k * mag > 30.0, mag - 30.0 / k, 0.0)
+    with torch.no_grad():
+        net.b2.copy_(torch.as_tensor(raw.reshape(-1), dtype=net.b2.dtype).expand_as(net.b2))
+        net.w2.mul_(shrink)
+    return theta
+
+
+def _derived_columns(spec: Mapping[str, int] | None, inputs: Sequence[str]) -> tuple[tuple[str, str, int], ...]:
+    """(name, column, order) of every asked-for input derivative, orders 1..n per column."""
+    if not spec:
+        return ()
+    unknown = [c for c in spec if c not in inputs]
+    if unknown:
+        raise MethodError(
+            f"method 'moe': option input_derivatives names {', '.join(map(repr, unknown))}, not among the run-time "
+            f"inputs ({', '.join(inputs)})"
+        )
+    return tuple((f"d{c}/dt" if n == 1 else f"d{n}{c}/dt{n}", c, n) for c, top in spec.items() for n in range(1, int(top) + 1))
+
+
+def input_derivative(x: np.ndarray, t: np.ndarray, order: int, window_s: float) -> np.ndarray:
+    """Smoothed ``order``-th time derivative of the columns of ``x`` (n, c) sampled at times ``t``.
+
+    A cubic Savitzky-Golay fit over about ``window_s`` seconds (scipy; the edges use the fit of
+    the first / last window). Needs only the inputs, so it is the same at fit and run time;
+    like the seed's TV-differentiated input derivatives it is not causal. Segments too short
+    for a cubic window fall back to repeated central differences.
+    """
+    n = len(x)
+    if n < 2:
+        return np.zeros_like(x, dtype=np.float64)
+    h = float(np.median(np.diff(t)))
+    w = min(int(round(window_s / h)) | 1, n if n % 2 else n - 1)
+    if w >= 5:
+        return savgol_filter(x, w, 3, deriv=order, delta=h, axis=0, mode="interp")
+    d = np.asarray(x, dtype=np.float64)
+    for _ in range(order):
+        d = np.gradient(d, t, axis=0) if len(d) > 1 else np.zeros_like(d)
+    return d
+
+
+def _augment(u: np.ndarray, t: np.ndarray, derived: Sequence[tuple[str, str, int]], inputs: Sequence[str], window_s: float) -> np.ndarray:
+    """The raw inputs ``u`` (n, n_u) followed by the derived input derivatives (n, len(derived))."""
+    if not derived:
+        return u
+    cols = [input_derivative(u[:, [list(inputs).index(c)]], t, n, window_s) for _, c, n in derived]
+    return np.hstack([u] + cols)
 
 
 def _names(chosen: Sequence[str] | None, available: Sequence[str], option: str) -> list[str]:

@@ -62,17 +62,25 @@ class MixtureOfExperts(nn.Module):
         self.gw2 = _uniform((gate_hidden, m), gate_hidden, gen, dtype)
         self.gb2 = _uniform((m,), gate_hidden, gen, dtype)
         self.register_buffer("sign", sign.to(dtype))
+        # schedulers are clamped to [v_lo, v_hi] (the training range once fitted): outside the
+        # identified range the scheduled coefficients and the gate saturate instead of extrapolating
+        self.register_buffer("v_lo", torch.full((n_sched,), -torch.inf, dtype=dtype))
+        self.register_buffer("v_hi", torch.full((n_sched,), torch.inf, dtype=dtype))
+
+    def clamp(self, v: torch.Tensor) -> torch.Tensor:
+        """Schedulers held inside [v_lo, v_hi]."""
+        return torch.maximum(torch.minimum(v, self.v_hi), self.v_lo)
 
     def coefficients(self, v: torch.Tensor) -> torch.Tensor:
         """Every expert's coefficient matrix at schedulers ``v`` (..., s) -> (..., M, k, q)."""
-        hid = torch.tanh(torch.einsum("...s,msh->...mh", v, self.w1) + self.b1)
+        hid = torch.tanh(torch.einsum("...s,msh->...mh", self.clamp(v), self.w1) + self.b1)
         raw = torch.einsum("...mh,mhp->...mp", hid, self.w2) + self.b2
         raw = raw.reshape(*raw.shape[:-1], self.n_out, self.n_reg)
         return signed_softplus(raw, self.sign, self.k)
 
     def gate(self, v: torch.Tensor) -> torch.Tensor:
         """Softmax gate weights (..., M) at schedulers ``v`` (..., s)."""
-        return torch.softmax(torch.tanh(v @ self.gw1 + self.gb1) @ self.gw2 + self.gb2, dim=-1)
+        return torch.softmax(torch.tanh(self.clamp(v) @ self.gw1 + self.gb1) @ self.gw2 + self.gb2, dim=-1)
 
     def forward(self, v: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Expert predictions (n, M, k) of regressors ``x`` (n, q) and the gate (n, M)."""
