@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from enginebench.errors import EngineBenchError, MethodError
-from enginebench.experiments.jobs import Job, stable_int, subsample_segments
+from enginebench.experiments.jobs import Job, refit_stored_job, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
 from enginebench.methods.base import Method
@@ -82,8 +82,7 @@ def plot_run(
     for (target, window, split), problem in ctx.problems.items():
         if part not in problem.parts:
             raise MethodError(f"run {run.id}: split {split!r} has no {part!r} part; it has {', '.join(problem.parts)}")
-        sub_rng = np.random.default_rng([spec.seed, repetition, stable_int(split)])
-        train = problem.train.take(subsample_segments(problem.train.segment_sizes, spec.train_size, sub_rng))
+        train = training_samples(spec, problem, repetition, split)
         scale = float(np.mean(np.abs(train.y)))
         data = problem.parts[part].materialize()
         order = np.argsort([-len(s) for s in data.segments], kind="stable")[:trajectories]
@@ -93,24 +92,15 @@ def plot_run(
         gate_label = ""
         for name in chosen:
             job = Job(target, window, split, name, repetition)
-            try:
-                meta = run.job_meta(job.key)
-            except EngineBenchError as exc:
-                report.notes.append(f"{name}: {exc}")
-                continue
-            if meta.get("status") != "ok":
-                report.notes.append(f"{name}: repetition {repetition} failed in the run ({meta.get('reason', '?')}); not drawn")
-                continue
             method = ctx.methods[name]
-            rng = np.random.default_rng([spec.seed, repetition, stable_int(name)])
             try:
-                fitted = method.fit(train, meta.get("params", {}), rng)
+                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
                 preds = method.predict(fitted, shown.without_targets())
                 if gate is None:
                     gate = gate_of(method, fitted, shown.without_targets())
                     gate_label = name if gate is not None else ""
             except (EngineBenchError, ValueError, RuntimeError, FloatingPointError) as exc:
-                report.notes.append(f"{name}: re-fit failed ({type(exc).__name__}: {exc}); not drawn")
+                report.notes.append(f"{name}: not drawn ({type(exc).__name__}: {exc})")
                 continue
             sims[name] = [np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0] for p, s in zip(preds, shown.segments)]
         if not sims:
