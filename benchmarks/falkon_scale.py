@@ -64,8 +64,8 @@ def main() -> None:
     parser.add_argument("--lam-per-row", type=float, default=1e-5,
                         help="lambda / n (the exact solver's lambda is this times n)")
     parser.add_argument("--maxiter", type=int, default=30)
-    parser.add_argument("--tol", type=float, default=1e-7)
-    parser.add_argument("--block-mib", type=float, default=512.0, help="memory of one streamed kernel block")
+    parser.add_argument("--tol", type=float, default=1e-5, help="CG stopping rule on the relative residual")
+    parser.add_argument("--block-mib", type=float, default=4.0, help="memory of one streamed kernel block (cache-sized)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
