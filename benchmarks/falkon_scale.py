@@ -80,6 +80,7 @@ def main() -> None:
 
     solver = FalkonSolver(gamma, lam, centres=args.centres, maxiter=args.maxiter, tol=args.tol,
                           device=args.device, dtype=getattr(torch, args.dtype), block_mib=args.block_mib)
+    load_before = os.getloadavg()
     t0 = time.perf_counter()
     solver.fit(X, y, np.random.default_rng(args.seed + 1))
     if solver.device.type == "cuda":
@@ -99,6 +100,8 @@ def main() -> None:
     print(f"gamma={gamma:.4g} lambda={lam:.4g} (lambda/n={args.lam_per_row:.3g}) "
           f"blocks={info['blocks']} x {info['block_rows']} rows, cached={info['cached']}")
     print(f"data generation {t_data:.1f} s")
+    print(f"load average before the fit {'/'.join(f'{v:.1f}' for v in load_before)}, "
+          f"after {'/'.join(f'{v:.1f}' for v in os.getloadavg())}")
     print(f"fit {t_fit:.1f} s: {info['iterations']} CG iterations ({info['passes']} passes over the data, "
           f"{t_fit / info['passes']:.2f} s per pass), relative residual {info['residual']:.2e}, "
           f"converged={info['converged']}")
