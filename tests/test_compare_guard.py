@@ -339,13 +339,15 @@ def test_baseline_from_summary_writes_null_for_missing_intervals():
     assert doc["entries"][0]["ci_low"] is None and doc["entries"][0]["lower_is_better"] is True
 
 
-def test_shipped_baseline_matches_the_builtin_quick_experiment():
-    doc = load_baseline("gas-turbine-nox-quick")
-    assert doc["path"] == str(published_dir() / "gas-turbine-nox-quick.json")
-    spec = load_spec("gas-turbine-nox-quick")
+@pytest.mark.parametrize("name", ["gas-turbine-nox-quick", "marine-diesel-egt-quick"])
+def test_shipped_baseline_matches_the_builtin_quick_experiment(name):
+    doc = load_baseline(name)
+    assert doc["path"] == str(published_dir() / f"{name}.json")
+    spec = load_spec(name)
     assert doc["experiment"] == spec.name and doc["config_hash"] == spec.config_hash()
     entries = pd.DataFrame(doc["entries"])
-    assert set(entries["method"]) == set(spec.methods) and set(entries["target"]) == {"NOX"}
+    assert set(entries["method"]) == set(spec.methods) and set(entries["target"]) == set(spec.targets)
+    assert set(entries["window"]) == set(spec.windows)
     assert (entries["n_repeats"] == spec.repetitions).all() and set(entries["split"]) == {"test"}
     assert {"mae", "rmae", "mape", "ppmcc"} <= set(entries["metric"])
     with pytest.raises(BaselineError, match="file not found"):
