@@ -11,32 +11,10 @@ import pytest
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.schema import Column, Schema
+from helpers import make_toy
 
 SHARED = Path(os.environ.get("ENGINEBENCH_SHARED", Path(__file__).resolve().parents[1].parent / "shared"))
 GAS_TURBINE_DIR = SHARED / "data" / "gas-turbine-emissions"
-
-
-def make_toy(n_segments: int = 4, n: int = 120, seed: int = 0, dt: float = 1.0) -> Dataset:
-    """Segments of y = sin(u1) + 0.5 u2 + 0.2 y(t-1) + noise, one 'unit' group per segment."""
-    rng = np.random.default_rng(seed)
-    parts = []
-    for k in range(n_segments):
-        u1 = rng.uniform(-2, 2, n)
-        u2 = np.cumsum(rng.normal(0, 0.3, n))
-        y = np.zeros(n)
-        for i in range(n):
-            y[i] = np.sin(u1[i]) + 0.5 * u2[i] + (0.2 * y[i - 1] if i else 0.0) + rng.normal(0, 0.01)
-        parts.append(pd.DataFrame({
-            SEGMENT: f"s{k}", TIME: (k * (n + 10) + np.arange(n)) * dt,
-            "u1": u1, "u2": u2, "y": y + 10.0, "unit": f"g{k % 2}",
-        }))
-    frame = pd.concat(parts, ignore_index=True)
-    schema = Schema((Column("u1", "input", "V"), Column("u2", "input", "bar"),
-                     Column("y", "output", "degC"), Column("unit", "group")))
-    ids = [f"s{k}" for k in range(n_segments)]
-    meta = {"provenance": "test fixture", "licence": "CC0",
-            "published_split": {"train": ids[:-1], "test": ids[-1:]}}
-    return Dataset("toy", frame, schema, dt, meta)
 
 
 @pytest.fixture

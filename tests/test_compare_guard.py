@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -23,15 +22,8 @@ from enginebench.results.guard import (
     BaselineError, Tolerance, baseline_from_summary, check, load_baseline, parse_tolerance, published_dir,
 )
 from enginebench.results.store import RunStore
+from helpers import make_toy
 from enginebench.results.tables import summarize
-
-
-def _make_toy():
-    """tests/conftest.py's toy dataset (importlib import mode: conftest is not importable by name)."""
-    spec = importlib.util.spec_from_file_location("_toy_conftest", Path(__file__).with_name("conftest.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_toy()
 
 
 KRLS = {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}
@@ -60,7 +52,7 @@ def runs(tmp_path_factory):
     from enginebench.datasets.io import write_dataset
 
     root = tmp_path_factory.mktemp("cg")
-    data = write_dataset(_make_toy(), root / "toy.parquet")
+    data = write_dataset(make_toy(), root / "toy.parquet")
     store = RunStore(root / "runs")
     a = run_experiment(_spec(data), store, workers=1).run
     b = run_experiment(_spec(data, seed=8, methods={"krls": KRLS}), store, workers=1).run

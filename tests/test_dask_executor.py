@@ -20,8 +20,12 @@ distributed = pytest.importorskip("distributed")
 from enginebench.cli.main import cli  # noqa: E402
 from enginebench.experiments import executors  # noqa: E402
 from enginebench.experiments.runner import run_experiment  # noqa: E402
-from enginebench.experiments.spec import from_dict  # noqa: E402
 from enginebench.results.store import RunStore  # noqa: E402
+from helpers import make_toy, toy_spec  # noqa: E402
+
+
+def dask_spec(dataset, **changes):
+    return toy_spec(dataset, **{"name": "dask-toy", "seed": 11, **changes})
 
 KEY = ["target", "window", "split", "method", "repetition", "metric"]
 
@@ -36,32 +40,11 @@ def scheduler():
         cluster.close()
 
 
-def make_toy():
-    """The shared toy dataset of conftest.py (loaded by path: test modules are imported with importlib)."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("_dask_conftest", Path(__file__).with_name("conftest.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_toy()
-
-
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     from enginebench.datasets.io import write_dataset
 
     return write_dataset(make_toy(), tmp_path_factory.mktemp("data") / "toy.parquet")
-
-
-def toy_spec(dataset, **changes):
-    raw = {
-        "name": "dask-toy", "dataset": str(dataset), "targets": ["y"], "repetitions": 3, "seed": 11,
-        "train_size": 150, "selection": {"kind": "bootstrap", "resamples": 2},
-        "methods": {"naive-mean": {}, "krls": {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}},
-    }
-    raw.update(changes)
-    return from_dict(raw, origin="test")
 
 
 def metric_table(run) -> pd.DataFrame:
@@ -77,7 +60,7 @@ def reference(dataset, tmp_path_factory):
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(1):
-        result = run_experiment(toy_spec(dataset), RunStore(tmp_path_factory.mktemp("runs")), workers=1)
+        result = run_experiment(dask_spec(dataset), RunStore(tmp_path_factory.mktemp("runs")), workers=1)
     assert result.n_failed == 0
     return result.run
 
@@ -90,7 +73,7 @@ def free_port() -> int:
 
 def test_dask_gives_exactly_the_metrics_of_the_local_executor(dataset, reference, tmp_path, scheduler):
     seen = []
-    dask = run_experiment(toy_spec(dataset), RunStore(tmp_path / "runs"), workers=2, executor="dask",
+    dask = run_experiment(dask_spec(dataset), RunStore(tmp_path / "runs"), workers=2, executor="dask",
                           scheduler=scheduler, progress=lambda done, total, job: seen.append((done, total)))
     assert dask.n_jobs == 6 and dask.n_failed == 0
     assert seen == [(k, 6) for k in range(1, 7)]
@@ -104,7 +87,7 @@ def test_dask_gives_exactly_the_metrics_of_the_local_executor(dataset, reference
 
 
 def test_an_interrupted_dask_run_resumes_on_dask(dataset, reference, tmp_path, scheduler):
-    spec = toy_spec(dataset)
+    spec = dask_spec(dataset)
     store = RunStore(tmp_path / "runs")
 
     class Stop(Exception):
@@ -129,7 +112,7 @@ def test_an_interrupted_dask_run_resumes_on_dask(dataset, reference, tmp_path, s
 
 
 def test_without_a_scheduler_a_local_cluster_of_jobs_workers_is_started(dataset, reference, tmp_path):
-    result = run_experiment(toy_spec(dataset), RunStore(tmp_path / "runs"), workers=2, executor="dask")
+    result = run_experiment(dask_spec(dataset), RunStore(tmp_path / "runs"), workers=2, executor="dask")
     assert result.n_failed == 0
     pd.testing.assert_frame_equal(metric_table(reference), metric_table(result.run), check_exact=True)
 

@@ -29,21 +29,16 @@ from click.testing import CliRunner
 from enginebench.cli.main import cli
 from enginebench.errors import StoreError
 from enginebench.experiments.runner import run_experiment
-from enginebench.experiments.spec import from_dict
 from enginebench.results import store as store_mod
 from enginebench.results.store import RunStore
+from helpers import toy_spec
 
 KEY = ["method", "repetition", "split", "metric"]
 
 
-def toy_spec(dataset, **changes):
-    raw = {
-        "name": "fault-exp", "dataset": str(dataset), "targets": ["y"], "repetitions": 3, "seed": 5,
-        "train_size": 100, "selection": {"kind": "bootstrap", "resamples": 2},
-        "methods": {"naive-mean": {}, "krls": {"gamma_grid": [-1, 0, 2], "lambda_grid": [-2, -1, 2]}},
-    }
-    raw.update(changes)
-    return from_dict(raw, origin="test")
+def fault_spec(dataset, **changes):
+    return toy_spec(dataset, **{"name": "fault-exp", "seed": 5, "train_size": 100, "methods": {
+        "naive-mean": {}, "krls": {"gamma_grid": [-1, 0, 2], "lambda_grid": [-2, -1, 2]}}, **changes})
 
 
 def exp_file(tmp_path: Path, dataset: Path, repetitions: int = 3) -> Path:
@@ -78,7 +73,7 @@ def leftovers(run) -> list[str]:
 
 # ----------------------------------------------------------------------------- killed mid-write
 def test_a_write_cut_short_is_never_read_as_a_job_and_is_removed_on_resume(toy_parquet, tmp_path):
-    spec = toy_spec(toy_parquet)
+    spec = fault_spec(toy_parquet)
     store = RunStore(tmp_path / "runs")
 
     class Stop(Exception):
@@ -120,7 +115,7 @@ def full_disk_after(n_ok: int, monkeypatch) -> dict:
 
 
 def test_disk_full_stops_the_run_keeps_earlier_jobs_and_resumes(toy_parquet, tmp_path, monkeypatch):
-    spec = toy_spec(toy_parquet)
+    spec = fault_spec(toy_parquet)
     reference = run_experiment(spec, RunStore(tmp_path / "ref"), workers=1).run.metrics()
     store = RunStore(tmp_path / "runs")
     full_disk_after(2, monkeypatch)
@@ -155,7 +150,7 @@ def test_disk_full_while_writing_a_job_names_the_job_file(toy_parquet, tmp_path,
     monkeypatch.setattr(store_mod, "_write_bytes", write)
     store = RunStore(tmp_path / "runs")
     with pytest.raises(StoreError) as err:
-        run_experiment(toy_spec(toy_parquet), store, workers=1)
+        run_experiment(fault_spec(toy_parquet), store, workers=1)
     (run,) = store.runs()
     job = "y__w0__published__krls__r000"
     assert str(err.value) == (
@@ -273,7 +268,7 @@ def test_two_runs_of_one_experiment_at_once_in_one_store(toy_parquet, tmp_path):
 # ----------------------------------------------------------------------------- damaged job files
 @pytest.fixture
 def finished_run(toy_parquet, tmp_path):
-    spec = toy_spec(toy_parquet)
+    spec = fault_spec(toy_parquet)
     run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
     return spec, run
 

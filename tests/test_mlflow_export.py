@@ -14,15 +14,7 @@ from enginebench.cli.main import cli
 from enginebench.results import tables
 from enginebench.results.mlflow_export import flatten, metric_key, resolve_uri, sanitize_key
 from enginebench.results.store import RunStore
-
-
-def _make_toy():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("_mlflow_conftest", Path(__file__).with_name("conftest.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_toy()
+from helpers import make_toy
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +24,7 @@ def run(tmp_path_factory):
     from enginebench.experiments.spec import from_dict
 
     root = tmp_path_factory.mktemp("mlflow-run")
-    data = write_dataset(_make_toy(), root / "toy.parquet")
+    data = write_dataset(make_toy(), root / "toy.parquet")
     spec = from_dict({"name": "toy-mlflow", "dataset": str(data), "targets": ["y"], "repetitions": 3, "seed": 5,
                       "mode": "window", "windows": [0, 2], "train_size": 120,
                       "selection": {"kind": "bootstrap", "resamples": 2},

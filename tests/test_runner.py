@@ -11,17 +11,8 @@ import pytest
 from enginebench.experiments.runner import plan, prepare, run_experiment
 from enginebench.experiments.spec import from_dict, load_spec
 from enginebench.results.store import RunStore
+from helpers import toy_spec
 from enginebench.results.tables import SUMMARY_COLUMNS, summarize, to_csv, to_html, to_latex, to_markdown
-
-
-def toy_spec(dataset, **changes):
-    raw = {
-        "name": "toy-exp", "dataset": str(dataset), "targets": ["y"], "repetitions": 3, "seed": 7,
-        "train_size": 150, "selection": {"kind": "bootstrap", "resamples": 2},
-        "methods": {"naive-mean": {}, "krls": {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}},
-    }
-    raw.update(changes)
-    return from_dict(raw, origin="test")
 
 
 def test_plan_covers_every_coordinate_once(toy_parquet):

@@ -1,0 +1,46 @@
+"""Helpers shared by test modules (importable as ``helpers``: pytest puts tests/ on the path)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+from enginebench.datasets.schema import Column, Schema
+from enginebench.experiments.spec import ExperimentSpec, from_dict
+
+
+def make_toy(n_segments: int = 4, n: int = 120, seed: int = 0, dt: float = 1.0) -> Dataset:
+    """Segments of y = sin(u1) + 0.5 u2 + 0.2 y(t-1) + noise, one 'unit' group per segment."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for k in range(n_segments):
+        u1 = rng.uniform(-2, 2, n)
+        u2 = np.cumsum(rng.normal(0, 0.3, n))
+        y = np.zeros(n)
+        for i in range(n):
+            y[i] = np.sin(u1[i]) + 0.5 * u2[i] + (0.2 * y[i - 1] if i else 0.0) + rng.normal(0, 0.01)
+        parts.append(pd.DataFrame({
+            SEGMENT: f"s{k}", TIME: (k * (n + 10) + np.arange(n)) * dt,
+            "u1": u1, "u2": u2, "y": y + 10.0, "unit": f"g{k % 2}",
+        }))
+    frame = pd.concat(parts, ignore_index=True)
+    schema = Schema((Column("u1", "input", "V"), Column("u2", "input", "bar"),
+                     Column("y", "output", "degC"), Column("unit", "group")))
+    ids = [f"s{k}" for k in range(n_segments)]
+    meta = {"provenance": "test fixture", "licence": "CC0",
+            "published_split": {"train": ids[:-1], "test": ids[-1:]}}
+    return Dataset("toy", frame, schema, dt, meta)
+
+
+def toy_spec(dataset: str | Path, **changes) -> ExperimentSpec:
+    """A small experiment on the toy dataset file: naive mean and a 3 x 3 KRLS grid, 3 repetitions."""
+    raw = {
+        "name": "toy-exp", "dataset": str(dataset), "targets": ["y"], "repetitions": 3, "seed": 7,
+        "train_size": 150, "selection": {"kind": "bootstrap", "resamples": 2},
+        "methods": {"naive-mean": {}, "krls": {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}},
+    }
+    raw.update(changes)
+    return from_dict(raw, origin="test")
