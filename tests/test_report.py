@@ -14,19 +14,10 @@ from matplotlib.image import imread
 from enginebench.cli.main import cli
 from enginebench.results import tables
 from enginebench.experiments.report import time_trend_plot, write_report
+from helpers import make_toy
 from enginebench.results.store import RunStore
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-def make_toy():
-    """The shared toy dataset of conftest.py (loaded by path: test modules are imported with importlib)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("_report_conftest", Path(__file__).with_name("conftest.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.make_toy()
 
 
 def _toy_run(root: Path, **changes):
