@@ -157,9 +157,12 @@ def ppmcc(y_true: object, y_pred: object) -> float:
     t, p = _validate(y_true, y_pred)
     if np.all(t == t[0]) or np.all(p == p[0]):
         return float("nan")
+    # r is scale-free: divide by the largest magnitude first, so that neither the squares of
+    # tiny spreads underflow (np.linalg.norm squares) nor those of huge values overflow
+    t = t / np.max(np.abs(t))
+    p = p / np.max(np.abs(p))
     tc = t - t.mean()
     pc = p - p.mean()
-    # Normalise each centred vector first: avoids overflow/underflow of the products.
     tn = np.linalg.norm(tc)
     pn = np.linalg.norm(pc)
     if tn == 0.0 or pn == 0.0:

@@ -466,6 +466,10 @@ def _close(a: float, b: float, scale: float = 1.0) -> bool:
 
 
 def _pearson(t: list[float], p: list[float]) -> float:
+    """Pearson's r by its definition, on each series divided by its largest magnitude first (r is
+    scale-free), so that tiny spreads do not underflow when squared."""
+    t = [a / max(map(abs, t)) for a in t]
+    p = [b / max(map(abs, p)) for b in p]
     n = len(t)
     mt, mp = math.fsum(t) / n, math.fsum(p) / n
     sxy = math.fsum((a - mt) * (b - mp) for a, b in zip(t, p))
