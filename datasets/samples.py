@@ -14,6 +14,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from enginebench.datasets.dataset import TIME, Dataset
+from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError
 
 MODES = ("static", "window", "simulation")
@@ -149,13 +150,13 @@ def lagged_feature_names(inputs: Sequence[str], outputs: Sequence[str], lags: in
     return names
 
 
-def check_targets(ds: Dataset, targets: Sequence[str]) -> list[str]:
-    """``targets`` as a list, each checked to be an 'output' column of ``ds``."""
+def check_targets(schema: Schema, targets: Sequence[str]) -> list[str]:
+    """``targets`` as a list, each checked to be an 'output' column of ``schema`` (unknown names list all columns)."""
     targets = list(targets)
     if not targets:
         raise DataError("no target given")
     for name in targets:
-        col = ds.schema[name]
+        col = schema[name]
         if col.role != "output":
             raise DataError(f"column {name!r} has role {col.role!r}; only 'output' columns can be targets")
     return targets
@@ -176,7 +177,7 @@ def make_samples(
     [t - Delta, t] and measured outputs over [t - Delta, t - dt]. The first Delta/dt rows
     of each segment, whose window is incomplete, are not evaluated.
     """
-    targets = check_targets(ds, targets)
+    targets = check_targets(ds.schema, targets)
     raw = RawSegments.from_dataset(ds, inputs=inputs, outputs=targets)
     return SamplePool(raw, targets, mode, window, physical_model=physical_model).materialize()
 

@@ -21,7 +21,7 @@ from enginebench.datasets.io import read_dataset, read_metadata
 from enginebench.datasets.samples import RawSegments, SamplePool, check_targets
 from enginebench.datasets.schema import Schema
 from enginebench.datasets.splits import make_splits
-from enginebench.errors import DataError, SpecError, StoreError
+from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
 from enginebench.experiments.executors import check_executor, default_workers, run_dask, run_local
 from enginebench.experiments.jobs import Context, Job, Problem
@@ -67,13 +67,13 @@ def load_dataset(spec: ExperimentSpec) -> tuple[Dataset, str]:
     if path is None:  # a TOML import spec: imported whole
         ds = catalog.load(spec.dataset, variant=spec.dataset_variant)
         dataset_hash = ds.content_hash()
-        return (ds.with_roles(spec.roles) if spec.roles else ds), dataset_hash
+        ds = ds.with_roles(spec.roles) if spec.roles else ds
+        check_targets(ds.schema, spec.targets)
+        return ds, dataset_hash
     doc = read_metadata(path)
     schema = Schema.from_dict(doc["schema"])
     roled = schema.with_roles(spec.roles) if spec.roles else schema
-    for target in spec.targets:  # the message names the column and its role, before anything is read
-        if roled[target].role != "output":
-            raise DataError(f"column {target!r} has role {roled[target].role!r}; only 'output' columns can be targets")
+    check_targets(roled, spec.targets)  # before reading, against every stored column
     columns = needed_columns(roled, spec)
     ds = read_dataset(path, columns=columns)
     if spec.roles:
@@ -94,7 +94,6 @@ def prepare(spec: ExperimentSpec) -> Context:
         method.check_mode(spec.mode)
         methods[name] = method
     ds, dataset_hash = load_dataset(spec)
-    check_targets(ds, spec.targets)
     pm = physical_model_for(ds)
     splits = make_splits(ds, **spec.split)
     name = ds.name
