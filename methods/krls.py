@@ -18,7 +18,8 @@ from sklearn.preprocessing import StandardScaler
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, check_log_grid_option, log_grid, split_rows
-from enginebench.methods.kernels import check_positive, gaussian, make_scaler, ridge_solutions, sq_distances
+from enginebench.methods.kernels import check_positive, gaussian, make_scaler, sq_distances
+from enginebench.methods.shifted import ridge_solutions
 
 
 SOLVERS = ("auto", "exact", "falkon")

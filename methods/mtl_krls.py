@@ -16,7 +16,19 @@ system per component (DESIGN section 5)::
 
 whose closed form is a~ = (y~ + p~)(s + 2 theta) / (s (2 s + 4 theta + lambda) + lambda theta),
 b~ = (y~ + theta a~) / (s + theta), c~ = (p~ + theta a~) / (s + theta). So the whole
-(gamma, lambda, theta) grid costs one eigendecomposition per gamma, like KRLS.
+(gamma, lambda, theta) grid costs at most one eigendecomposition per gamma.
+
+It costs less: the shared filter has two real poles. With R = sqrt(16 theta^2 + lambda^2),
+mu1 = (4 theta + lambda + R) / 4 and mu2 = lambda theta / (2 mu1) (both > 0),
+
+    (s + 2 theta) / (2 (s + mu1)(s + mu2)) = w1 / (s + mu1) + w2 / (s + mu2),
+    w1 = lambda (1 + lambda / (4 theta + R)) / (4 R),   w2 = theta (1 + 4 theta / (R + lambda)) / R,
+
+both weights positive with w1 + w2 = 1/2 (no cancellation), so the shared model is
+a = w1 (Q + mu1 I)^-1 (y + p) + w2 (Q + mu2 I)^-1 (y + p): two kernel ridge solutions on
+the summed targets. Model selection therefore takes the KRLS path (``shifted_solutions``:
+Lanczos with a residual certificate, Cholesky or one tridiagonalisation per gamma) with
+two shifts per (lambda, theta); the y-task model keeps the eigendecomposition.
 
 The shared model h(x) = sum_i a_i K(x_i, x) is the prediction, as in the seed. Note what
 the closed form says: a~ depends on y and p only through y + p, so the shared model is a
@@ -39,6 +51,7 @@ from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
 from enginebench.methods.krls import KRLS, _check_finite
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
+from enginebench.methods.shifted import shifted_solutions
 
 HYPERPARAMETERS = ("gamma", "lambda", "theta")
 
@@ -58,6 +71,19 @@ def mtl_coefficients(
     b = (y_t + th * a) / (s + th)
     c = (p_t + th * a) / (s + th)
     return a, b, c
+
+
+def shared_poles(lambdas: np.ndarray, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Partial fractions of the shared model's spectral filter: shifts (mu1, mu2) and weights (w1, w2),
+    each (P, 2) for P (lambda, theta) pairs; a~ = (y~ + p~) sum_r w_r / (s + mu_r) (module docstring)."""
+    lam = np.asarray(lambdas, dtype=np.float64)
+    th = np.asarray(thetas, dtype=np.float64)
+    R = np.hypot(4 * th, lam)
+    mu1 = (4 * th + lam + R) / 4
+    mu2 = lam * th / (2 * mu1)
+    w1 = lam * (1 + lam / (4 * th + R)) / (4 * R)
+    w2 = th * (1 + 4 * th / (R + lam)) / R
+    return np.stack([mu1, mu2], axis=1), np.stack([w1, w2], axis=1)
 
 
 @dataclass(frozen=True)
@@ -136,18 +162,21 @@ class MTLKRLS(KRLS):
         _check_finite(X, "features to predict (with the PM prediction)", (*data.feature_names, "pm"))
         return scaler.transform(X)
 
-    def _pick(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return a if self.options["predict_with"] == "shared" else b
-
     # -- one grid point -------------------------------------------------------------------
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MTLFitted:
         gamma, lam, theta = _params(params)
         pm_params, scaler, Xs, yc, pc, offset = self._prepare(train)
-        spectral = Spectral.from_kernel(gaussian(sq_distances(Xs), gamma))
-        a, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), np.array([lam]), np.array([theta]))
-        coeffs = self._pick(a, b)[:, 0, 0, :]
-        alpha = spectral.lift(coeffs)
-        fitted_train = spectral.lift(spectral.s[:, None] * coeffs)  # Q alpha = V diag(s) coeffs
+        K = gaussian(sq_distances(Xs), gamma)
+        if self.options["predict_with"] == "shared":
+            shifts, weights = shared_poles(np.array([lam]), np.array([theta]))
+            alpha = shifted_solutions(K, yc + pc, shifts, weights)[0][:, 0, :]
+            fitted_train = K @ alpha
+        else:
+            spectral = Spectral.from_kernel(K)
+            _, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), np.array([lam]),
+                                       np.array([theta]))
+            alpha = spectral.lift(b[:, 0, 0, :])
+            fitted_train = spectral.lift(spectral.s[:, None] * b[:, 0, 0, :])  # Q alpha = V diag(s) coeffs
         gap = float(np.sqrt(np.mean((fitted_train - pc) ** 2))) if self.options["pm_task"] else float("nan")
         return MTLFitted(scaler, Xs, alpha, gamma, lam, theta, offset, pm_params, gap)
 
@@ -164,8 +193,9 @@ class MTLKRLS(KRLS):
 
     # -- the whole grid -------------------------------------------------------------------
     def predict_grid(self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator) -> np.ndarray:
-        """(n_grid, n_rows, k): one eigendecomposition per distinct gamma serves its whole (lambda, theta) block."""
-        triples = np.array([_params(p) for p in grid]).reshape(-1, 3)
+        """(n_grid, n_rows, k): per distinct gamma, one call of ``shifted_solutions`` (two shifts per
+        (lambda, theta)) serves the shared model's whole block; the y-task model takes one eigendecomposition."""
+        triples = _grid_triples(grid)
         pm_params, scaler, Xs, yc, pc, offset = self._prepare(train)
         Xe = self._eval(data, pm_params, scaler)
         out = np.empty((len(triples), len(Xe), yc.shape[1]))
@@ -175,13 +205,35 @@ class MTLKRLS(KRLS):
         K_train, K_eval = np.empty_like(D_train), np.empty_like(D_eval)
         for gamma in dict.fromkeys(triples[:, 0].tolist()):
             idx = np.flatnonzero(triples[:, 0] == gamma)
+            K = gaussian(D_train, gamma, out=K_train)
+            Ke = gaussian(D_eval, gamma, out=K_eval)
+            if self.options["predict_with"] == "shared":
+                shifts, weights = shared_poles(triples[idx, 1], triples[idx, 2])
+                pred, _ = shifted_solutions(K, yc + pc, shifts, weights, K_eval=Ke, overwrite=True)
+                out[idx] = pred.transpose(1, 0, 2)
+                continue
             lams, li = np.unique(triples[idx, 1], return_inverse=True)
             ths, ti = np.unique(triples[idx, 2], return_inverse=True)
-            spectral = Spectral.from_kernel(gaussian(D_train, gamma, out=K_train), overwrite=True)
-            a, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), lams, ths)
-            coeffs = self._pick(a, b)[:, li, ti, :]  # (n, G_gamma, k)
-            out[idx] = spectral.predict_coeffs(gaussian(D_eval, gamma, out=K_eval), coeffs)
-        return out + offset
+            spectral = Spectral.from_kernel(K, overwrite=True)
+            _, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), lams, ths)
+            out[idx] = spectral.predict_coeffs(Ke, b[:, li, ti, :])
+        out += offset
+        return out
+
+
+def _grid_triples(grid: Sequence[Params]) -> np.ndarray:
+    """(gamma, lambda, theta) of every grid point, (G, 3), checked positive; vectorised for 41^3 grids."""
+    expected = set(HYPERPARAMETERS)
+    for params in grid:
+        if params.keys() != expected:
+            _params(params)  # raises the precise message
+    try:
+        triples = np.array([[p["gamma"], p["lambda"], p["theta"]] for p in grid], dtype=np.float64).reshape(-1, 3)
+    except (TypeError, ValueError):
+        return np.array([_params(p) for p in grid], dtype=np.float64).reshape(-1, 3)
+    for j, name in enumerate(HYPERPARAMETERS):
+        check_positive(triples[:, j], name)
+    return triples
 
 
 def _params(params: Params) -> tuple[float, float, float]:

@@ -351,7 +351,7 @@ def _drift_problem(n: int, d: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("gamma", [1e-4, 1e-2, 0.1, 1.0, 30.0])
 def test_ridge_routes_agree_with_the_eigendecomposition(gamma: float) -> None:
-    from enginebench.methods.kernels import cholesky_ridge, householder_ridge, lanczos_ridge, ridge_solutions
+    from enginebench.methods.shifted import cholesky_ridge, householder_ridge, lanczos_ridge, ridge_solutions
 
     X, y = _drift_problem(300, 5, 3)
     K = gaussian(sq_distances(X[:240]), gamma)
@@ -381,7 +381,7 @@ def test_ridge_routes_agree_with_the_eigendecomposition(gamma: float) -> None:
 
 def test_ridge_solutions_uses_every_route_on_the_benchmark_grid() -> None:
     """Across the 41-gamma grid all three routes occur, and each lambda is solved exactly once."""
-    from enginebench.methods.kernels import ridge_solutions
+    from enginebench.methods.shifted import ridge_solutions
 
     X, y = _drift_problem(400, 8, 0)
     D = sq_distances(X)
@@ -395,7 +395,7 @@ def test_ridge_solutions_uses_every_route_on_the_benchmark_grid() -> None:
 
 
 def test_householder_falls_back_to_the_clipped_spectrum_when_rounding_makes_k_indefinite() -> None:
-    from enginebench.methods.kernels import householder_ridge
+    from enginebench.methods.shifted import householder_ridge
 
     rng = np.random.default_rng(5)
     V, _ = np.linalg.qr(rng.normal(size=(30, 30)))

@@ -9,7 +9,8 @@ from enginebench.datasets.samples import make_samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import grid_points
 from enginebench.methods.kernels import Spectral
-from enginebench.methods.mtl_krls import MTLKRLS, mtl_coefficients
+from enginebench.methods.mtl_krls import MTLKRLS, mtl_coefficients, shared_poles
+from enginebench.methods.shifted import shifted_solutions
 
 
 def primal_solution(Phi, y, p, lam, theta):
@@ -42,6 +43,34 @@ def test_spectral_closed_form_matches_the_primal_solve(n, D, lam, theta):
     task_y = spectral.predict_coeffs(K_test, b[:, :, 0, :])[0, :, 0]
     np.testing.assert_allclose(shared, Phi_test @ w, rtol=1e-8, atol=1e-8 * np.abs(Phi_test @ w).max())
     np.testing.assert_allclose(task_y, Phi_test @ w_y, rtol=1e-8, atol=1e-8 * np.abs(Phi_test @ w_y).max())
+
+
+def test_shared_filter_is_the_sum_of_its_two_partial_fractions():
+    """(s + 2 theta) / (s (2 s + 4 theta + lambda) + lambda theta) = w1 / (s + mu1) + w2 / (s + mu2),
+    with positive weights summing to 1/2, over the whole 41 x 41 grid and eigenvalues 0 ... 1e4."""
+    g = np.logspace(-4, 4, 41)
+    lam, th = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    shifts, weights = shared_poles(lam, th)
+    assert (shifts > 0).all() and (weights > 0).all()
+    np.testing.assert_allclose(weights.sum(axis=1), 0.5, rtol=1e-14)
+    s = np.r_[0.0, np.logspace(-8, 4, 50)][:, None]
+    exact = (s + 2 * th) / (s * (2 * s + 4 * th + lam) + lam * th)
+    fractions = weights[:, 0] / (s + shifts[:, 0]) + weights[:, 1] / (s + shifts[:, 1])
+    np.testing.assert_allclose(fractions, exact, rtol=1e-12)
+
+
+@pytest.mark.parametrize("lam, theta", [(0.1, 1.0), (2.0, 0.05), (1e-2, 30.0)])
+@pytest.mark.parametrize("krylov_maxiter", [0, None])
+def test_partial_fraction_solves_match_the_primal_solve(lam, theta, krylov_maxiter):
+    """The fast path of fit/predict_grid (two shifted ridge solves on y + p) against eq. 20's normal equations."""
+    rng = np.random.default_rng(7)
+    Phi, Phi_test = rng.normal(size=(40, 15)), rng.normal(size=(7, 15))
+    y, p = rng.normal(size=40), rng.normal(size=40) + 0.5
+    w, _, _ = primal_solution(Phi, y, p, lam, theta)
+    shifts, weights = shared_poles(np.array([lam]), np.array([theta]))
+    pred, _ = shifted_solutions(Phi @ Phi.T, (y + p)[:, None], shifts, weights, K_eval=Phi_test @ Phi.T,
+                                krylov_maxiter=krylov_maxiter)
+    np.testing.assert_allclose(pred[:, 0, 0], Phi_test @ w, rtol=1e-8, atol=1e-8 * np.abs(Phi_test @ w).max())
 
 
 def test_coefficients_solve_each_3x3_system():
@@ -88,9 +117,28 @@ def toy_samples(toy):
     return train, test
 
 
-def test_grid_predictions_equal_separate_fits(toy_samples):
+def test_fast_grid_equals_the_eigendecomposition_over_a_wide_grid(toy_samples):
+    """predict_grid's partial-fraction path against the closed form in the eigenbasis (9^3 points)."""
+    from enginebench.methods.kernels import gaussian, sq_distances
+
     train, test = toy_samples
-    method = MTLKRLS(gamma_grid=(-1, 0, 2), lambda_grid=(-2, 0, 2), theta_grid=(-1, 1, 3))
+    method = MTLKRLS(gamma_grid=(-4, 4, 9), lambda_grid=(-4, 4, 9), theta_grid=(-4, 4, 9))
+    grid = grid_points(method.search_space(train))
+    block = method.predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    pm_params, scaler, Xs, yc, pc, offset = method._prepare(train)
+    Xe = method._eval(test, pm_params, scaler)
+    for g, params in enumerate(grid[::37]):
+        spectral = Spectral.from_kernel(gaussian(sq_distances(Xs), params["gamma"]))
+        a, _, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc),
+                                   np.array([params["lambda"]]), np.array([params["theta"]]))
+        ref = spectral.predict_coeffs(gaussian(sq_distances(Xe, Xs), params["gamma"]), a[:, :, 0, :])[0] + offset
+        np.testing.assert_allclose(block[g * 37], ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("predict_with", ["shared", "task"])
+def test_grid_predictions_equal_separate_fits(toy_samples, predict_with):
+    train, test = toy_samples
+    method = MTLKRLS(gamma_grid=(-1, 0, 2), lambda_grid=(-2, 0, 2), theta_grid=(-1, 1, 3), predict_with=predict_with)
     grid = grid_points(method.search_space(train))
     assert len(grid) == 12
     rng = np.random.default_rng(0)
