@@ -33,7 +33,9 @@ Guard rule, per published entry: the bound is ``ci_high`` for a lower-is-better 
 allowed limit is the bound plus the tolerance (minus, for higher-is-better). The
 tolerance is absolute (``0.05``: metric units) or relative (``5%``: of the published
 mean's magnitude). An entry is ``regressed`` when the run's mean is beyond the limit,
-``missing`` when the run has no value for it, ``more failures`` when the run has more
+``missing`` when the run has no value for it (an excess within ``ROUNDING_RTOL`` of the
+values' magnitude is rounding, not a regression: the same computation on another BLAS
+build or CPU differs in the last digits, and a deterministic method's interval is a point), ``more failures`` when the run has more
 failed repetitions than published; otherwise ``ok``. Values of the run that the
 baseline does not list are ignored. A different experiment, config hash or dataset
 hash, or an unfinished run, gives a warning (a failure with ``strict``).
@@ -275,6 +277,8 @@ def parse_tolerance(text: str | float | None) -> Tolerance:
 
 
 STATUS_ORDER = ("regressed", "more failures", "missing", "ok")
+ROUNDING_RTOL = 1e-9
+"""Excess up to this fraction of max(|limit|, |run mean|) is floating-point rounding, not a regression."""
 
 
 @dataclass
@@ -320,7 +324,8 @@ def check(baseline: dict[str, Any], summary: pd.DataFrame, tolerance: Tolerance 
     with np.errstate(divide="ignore", invalid="ignore"):
         m["excess_rel"] = np.where(mean != 0, m["excess"] / np.abs(mean), np.nan)
     missing = m["run_mean"].isna().to_numpy()
-    regressed = ~missing & (m["excess"].to_numpy(dtype=float) > 0)
+    rounding = ROUNDING_RTOL * np.maximum(np.abs(m["limit"].to_numpy(dtype=float)), np.abs(value))
+    regressed = ~missing & (m["excess"].to_numpy(dtype=float) > rounding)
     failures = ~missing & (m["run_n_failed"].fillna(0).to_numpy() > m["n_failed"].to_numpy())
     m["status"] = np.select([missing, regressed, failures], ["missing", "regressed", "more failures"], "ok")
     return m, max(ignored, 0)

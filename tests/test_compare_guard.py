@@ -259,6 +259,23 @@ def test_guard_rule_numbers_with_relative_tolerance():
     assert list(rows["status"]) == ["ok", "ok"] and rows["excess"].iloc[0] == pytest.approx(-0.05)
 
 
+def test_guard_treats_last_digit_differences_as_rounding():
+    """A deterministic method's point interval: 1e-15 beyond it passes, 1e-6 beyond it regresses."""
+    pub = {"entries": [
+        {"target": "y", "mode": "static", "window": 0, "method": "pm", "split": "test", "metric": "ppmcc",
+         "mean": 0.97457, "ci_low": 0.97457, "ci_high": 0.97457, "n_repeats": 8, "n_failed": 0, "lower_is_better": False},
+        {"target": "y", "mode": "static", "window": 0, "method": "pm", "split": "test", "metric": "mae",
+         "mean": 14.9, "ci_low": 14.9, "ci_high": 14.9, "n_repeats": 8, "n_failed": 0, "lower_is_better": True},
+    ]}
+    def status(ppmcc: float, mae: float) -> list[str]:
+        summary = pd.DataFrame({"target": "y", "mode": "static", "window": [0.0, 0.0], "method": "pm", "split": "test",
+                                "metric": ["ppmcc", "mae"], "mean": [ppmcc, mae], "n_repeats": 8, "n_failed": 0})
+        return list(check(pub, summary)[0]["status"])
+
+    assert status(0.97457 - 1e-15, 14.9 + 2e-14) == ["ok", "ok"]
+    assert status(0.97457 - 1e-6, 14.9 + 1e-6) == ["regressed", "regressed"]
+
+
 @pytest.mark.parametrize("text, tol", [("0.05", Tolerance(0.05)), ("5%", Tolerance(0.05, True)), (" 2.5 % ", Tolerance(0.025, True)),
                                        ("1e-3", Tolerance(0.001)), ("", Tolerance())])
 def test_parse_tolerance(text, tol):
