@@ -23,16 +23,22 @@ def _uniform(shape: tuple[int, ...], fan_in: int, gen: torch.Generator, dtype: t
     return nn.Parameter((torch.rand(shape, generator=gen, dtype=dtype) * 2.0 - 1.0) * bound)
 
 
-def signed_softplus(x: torch.Tensor, sign: torch.Tensor, k: float) -> torch.Tensor:
-    """Seed 003 eq. 6 where ``sign`` is +-1, identity where it is 0."""
-    return torch.where(sign != 0, sign * F.softplus(x, beta=k), x)
+def signed_softplus(x: torch.Tensor, sign: torch.Tensor, k: float, margin: torch.Tensor | float = 0.0) -> torch.Tensor:
+    """Seed 003 eq. 6 where ``sign`` is +-1, identity where it is 0.
+
+    ``margin`` (>= 0, broadcast like ``sign``) shifts a constrained coefficient away from 0:
+    sign (margin + log(1 + e^{kx}) / k), so its magnitude never falls below the margin
+    (a frozen-stability margin on an own-state coefficient: its time constant is bounded).
+    """
+    return torch.where(sign != 0, sign * (margin + F.softplus(x, beta=k)), x)
 
 
 class MixtureOfExperts(nn.Module):
     """Gate and LPV experts over ``n_sched`` scheduler inputs.
 
     ``sign`` is a (k, q) tensor of -1 / 0 / +1: the constrained sign of each coefficient
-    (0 = free). Parameters are drawn from the CPU generator ``gen`` for determinism.
+    (0 = free); ``margin`` an optional (k, q) tensor >= 0, the least magnitude of each
+    constrained coefficient (``signed_softplus``). Parameters are drawn from the CPU generator ``gen`` for determinism.
     """
 
     def __init__(
@@ -47,6 +53,7 @@ class MixtureOfExperts(nn.Module):
         k: float,
         gen: torch.Generator,
         dtype: torch.dtype = torch.float32,
+        margin: torch.Tensor | None = None,
     ) -> None:
         super().__init__()
         if sign.shape != (n_out, n_reg):
@@ -62,6 +69,10 @@ class MixtureOfExperts(nn.Module):
         self.gw2 = _uniform((gate_hidden, m), gate_hidden, gen, dtype)
         self.gb2 = _uniform((m,), gate_hidden, gen, dtype)
         self.register_buffer("sign", sign.to(dtype))
+        margin = torch.zeros((n_out, n_reg), dtype=dtype) if margin is None else margin.to(dtype)
+        if margin.shape != (n_out, n_reg) or bool((margin < 0).any()):
+            raise ValueError(f"margin must be a ({n_out}, {n_reg}) tensor >= 0, got shape {tuple(margin.shape)}")
+        self.register_buffer("margin", margin)
         # schedulers are clamped to [v_lo, v_hi] (the training range once fitted): outside the
         # identified range the scheduled coefficients and the gate saturate instead of extrapolating
         self.register_buffer("v_lo", torch.full((n_sched,), -torch.inf, dtype=dtype))
@@ -76,7 +87,7 @@ class MixtureOfExperts(nn.Module):
         hid = torch.tanh(torch.einsum("...s,msh->...mh", self.clamp(v), self.w1) + self.b1)
         raw = torch.einsum("...mh,mhp->...mp", hid, self.w2) + self.b2
         raw = raw.reshape(*raw.shape[:-1], self.n_out, self.n_reg)
-        return signed_softplus(raw, self.sign, self.k)
+        return signed_softplus(raw, self.sign, self.k, self.margin)
 
     def gate(self, v: torch.Tensor) -> torch.Tensor:
         """Softmax gate weights (..., M) at schedulers ``v`` (..., s)."""

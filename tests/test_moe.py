@@ -384,8 +384,8 @@ def test_input_derivatives_let_the_mixture_model_a_lead():
         MoE(input_derivatives={"u": 3})
 
 
-def test_warm_start_puts_every_expert_at_the_least_squares_model():
-    from enginebench.methods.moe import warm_start
+def test_warm_start_puts_every_expert_at_the_sign_bounded_least_squares_model():
+    from enginebench.methods.moe import lstsq_coefficients, warm_start
     from enginebench.methods.moe_model import MixtureOfExperts
 
     rng = np.random.default_rng(0)
@@ -394,16 +394,168 @@ def test_warm_start_puts_every_expert_at_the_least_squares_model():
     D = X @ theta.T + 0.01 * rng.normal(size=(500, 1))
     sign = np.array([[-1.0, 0.0, 0.0]])
     net = MixtureOfExperts(1, 1, 3, 3, 8, 8, torch.as_tensor(sign), 1.0, torch.Generator().manual_seed(0), torch.float64)
-    got = warm_start(net, X, D, sign, 1.0, shrink=0.0)
+    got = lstsq_coefficients(X, D, sign)
     np.testing.assert_allclose(got, theta, atol=0.01)
+    warm_start(net, got, sign, 1.0, shrink=0.0)
     with torch.no_grad():
         G = net.coefficients(torch.linspace(-2, 2, 5, dtype=torch.float64)[:, None]).numpy()  # (5, M, 1, 3)
     np.testing.assert_allclose(G, np.broadcast_to(got, G.shape), rtol=1e-9, atol=1e-12)
-    # a constrained coefficient whose least-squares value has the wrong sign starts small, with the right sign
-    got = warm_start(net, X, -D, sign, 1.0, shrink=0.0)
+    # the data prefer the wrong sign: the coefficient sits at its bound 0 and the others are the
+    # least-squares fit without it (bounded least squares, not a fit-then-clip)
+    got = lstsq_coefficients(X, -D, sign)
+    assert got[0, 0] == 0.0
+    np.testing.assert_allclose(got[0, 1:], np.linalg.lstsq(X[:, 1:], -D[:, 0], rcond=None)[0], rtol=1e-5)
+    warm_start(net, got, sign, 1.0, shrink=0.0)
     with torch.no_grad():
         a = net.coefficients(torch.zeros((1, 1), dtype=torch.float64))[0, :, 0, 0].numpy()
-    assert got[0, 0] > 0 and np.allclose(a, -1e-2)
+    np.testing.assert_allclose(a, -1e-2, rtol=1e-9)  # starts 1e-2 beyond the bound, right sign
+    # a margin of 0.5 binds (-0.3 is too slow): the coefficient sits at -0.5, the network at -(0.5 + 1e-2)
+    margin = np.array([[0.5, 0.0, 0.0]])
+    got = lstsq_coefficients(X, D, sign, margin)
+    assert got[0, 0] == pytest.approx(-0.5, abs=1e-12)
+    net = MixtureOfExperts(1, 1, 3, 2, 8, 8, torch.as_tensor(sign), 1.0, torch.Generator().manual_seed(0), torch.float64,
+                           torch.as_tensor(margin))
+    warm_start(net, got, sign, 1.0, margin, shrink=0.0)
+    with torch.no_grad():
+        a = net.coefficients(torch.zeros((1, 1), dtype=torch.float64))[0, :, 0, 0].numpy()
+    np.testing.assert_allclose(a, -0.51, rtol=1e-9)
+
+
+def test_signed_softplus_margin_bounds_the_magnitude():
+    x = torch.linspace(-40, 40, 81, dtype=torch.float64)
+    neg = signed_softplus(x, torch.tensor(-1.0, dtype=torch.float64), 1.0, 0.25)
+    np.testing.assert_allclose(neg.numpy(), -(0.25 + np.log1p(np.exp(x.numpy()))), rtol=1e-8)  # torch: linear beyond x = 20
+    assert (neg <= -0.25).all()
+    free = signed_softplus(x, torch.tensor(0.0, dtype=torch.float64), 1.0, 0.25)
+    np.testing.assert_array_equal(free.numpy(), x.numpy())  # a free coefficient ignores the margin
+
+
+def test_first_order_responses_match_the_analytic_solution():
+    from enginebench.methods.moe import first_order_responses
+
+    t = np.arange(2001) * 0.01
+    a = -0.5
+    X = np.c_[np.ones_like(t), np.sin(t)]
+    got = first_order_responses(X, t, a)
+    # x' = a x + 1 and x' = a x + sin t from x(0) = 0
+    step = (np.exp(a * t) - 1.0) / a
+    sine = (-a * np.sin(t) - np.cos(t) + np.exp(a * t)) / (1.0 + a * a)
+    np.testing.assert_allclose(got[:, 0], step, atol=1e-5)  # trapezoid rule: global error O(h^2) = 1e-4 x O(0.1)
+    np.testing.assert_allclose(got[:, 1], sine, atol=1e-5)
+    assert got[0].tolist() == [0.0, 0.0]
+
+
+def test_output_error_fit_recovers_a_known_lti_system():
+    """dz/dt = -0.4 z + 1.5 u + 0.2 sampled by the same trapezoid rule: the pole (on the grid's end,
+    tau = 2.5 s) and the gains come back to rounding; equation error on these derivatives would not
+    matter here, the point is the separable least squares."""
+    from enginebench.methods.moe import first_order_responses, output_error_coefficients
+
+    rng = np.random.default_rng(4)
+    Xs, Zs, Ts = [], [], []
+    for _ in range(3):
+        t = np.arange(600) * 0.1
+        u = np.sin(0.3 * t + rng.uniform(0, 6)) + 0.5 * np.sin(1.1 * t + rng.uniform(0, 6))
+        z0 = rng.normal()
+        r = first_order_responses(np.c_[u, np.ones_like(u)], t, -0.4)
+        p = (1 - 0.02) / (1 + 0.02)
+        z = z0 * p ** np.arange(600) + r @ np.array([1.5, 0.2])
+        Xs.append(np.c_[z, u, np.ones_like(u)])
+        Zs.append(z[:, None])
+        Ts.append(t)
+    sign = np.array([[-1.0, 0.0, 0.0]])
+    theta, tau, mse = output_error_coefficients(Xs, Zs, Ts, sign, np.zeros((1, 3)), np.array([2.0]), 2.5, 12)
+    assert tau[0] == pytest.approx(2.5) and mse[0] < 1e-20
+    np.testing.assert_allclose(theta * 2.0, [[-0.4, 1.5, 0.2]], rtol=1e-9)  # network units: divided by d_scale
+    # the grid never offers a pole slower than max_time_constant: 1 s forces a = -1
+    theta, tau, mse = output_error_coefficients(Xs, Zs, Ts, sign, np.zeros((1, 3)), np.array([1.0]), 1.0, 12)
+    assert tau[0] == pytest.approx(1.0) and theta[0, 0] == pytest.approx(-1.0) and mse[0] > 1e-4
+    with pytest.raises(MethodError, match="constrained positive"):
+        output_error_coefficients(Xs, Zs, Ts, -sign, np.zeros((1, 3)), np.array([1.0]), 2.5, 12)
+
+
+def test_affine_prefix_scan_equals_the_sequential_recurrence():
+    from enginebench.methods.moe import affine_prefix_scan
+
+    g = torch.Generator().manual_seed(3)
+    Phi = torch.eye(2, dtype=torch.float64) + 0.1 * torch.randn((3, 37, 2, 2), generator=g, dtype=torch.float64)
+    gamma = torch.randn((3, 37, 2), generator=g, dtype=torch.float64)
+    z0 = torch.randn((3, 2), generator=g, dtype=torch.float64)
+    M, c = affine_prefix_scan(Phi, gamma)
+    z, ref = z0, []
+    for n in range(37):
+        z = (Phi[:, n] @ z[..., None])[..., 0] + gamma[:, n]
+        ref.append(z)
+    got = (M @ z0[:, None, :, None])[..., 0] + c
+    np.testing.assert_allclose(got.numpy(), torch.stack(ref, 1).numpy(), rtol=1e-12, atol=1e-12)
+
+
+def test_margin_and_output_error_start_and_simulation_loss(train, test_data):
+    """max_time_constant = 0.5 s binds (the true regimes have a = -1 and -3): every expert's own-state
+    coefficient stays <= -2 everywhere; the output-error start reports its pole; the simulation
+    term trains and its windows are simulated exactly like ``simulate``."""
+    method = MoE(scheduler=["v"], batch_size=2048, device="cpu", dtype="float64", init="output_error",
+                 max_time_constant=0.5, sim_weight=1.0, shooting_window=5.0)
+    fitted = method.fit(train, {"n_experts": 2, "epochs": 20, "lr": 1e-2}, np.random.default_rng(0))
+    verdict = frozen_stability(fitted)
+    assert verdict["max_state_coefficient"] <= -2.0 + 1e-9 and verdict["stable"]
+    d = method.describe(fitted)
+    assert d["warm_start"]["init"] == "output_error" and d["warm_start"]["time_constant_s"] == [pytest.approx(0.5)]
+    pred = method.predict(fitted, test_data.without_targets())
+    assert not pred.diverged.any() and np.isfinite(np.concatenate(list(pred))).all()
+    with pytest.raises(MethodError, match="max_time_constant bounds own-state coefficients"):
+        MoE(scheduler=["v"], signs="none", max_time_constant=1.0).fit(train, {"epochs": 1}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="quasi-LPV"):
+        MoE(scheduler=["v"], scheduler_state=True, sim_weight=1.0).fit(train, {"epochs": 1}, np.random.default_rng(0))
+    for bad in ({"max_time_constant": -1}, {"sim_weight": -1.0}, {"init": "oe"}, {"correct": {"z": {"v": [0, 1]}}}):
+        with pytest.raises(MethodError):
+            MoE(**bad)
+
+
+def test_rollout_of_training_windows_equals_simulate(model, short_data):
+    from enginebench.methods.moe import _Sim, build_network
+
+    _, fitted = model
+    seg = short_data.segments[0]
+    (ref,), _, _ = simulate(fitted, replace(short_data, segments=(seg,)))
+    U = torch.as_tensor(((seg.U - fitted.u_mean) / fitted.u_scale)[None])
+    inf = torch.full((1,), torch.inf, dtype=torch.float64)
+    sim = _Sim(options=fitted.options, n_experts=3, net=build_network(fitted, torch.device("cpu")).double(), U=U,
+               H=torch.as_tensor(np.diff(seg.t)[None]), lo=-inf, hi=inf, d_scale=torch.as_tensor(fitted.d_scale), si=[1],
+               ei=[0, 1], record_gate=False)
+    z0 = torch.as_tensor((seg.y0 - fitted.y_mean) / fitted.y_scale)[None]
+    with torch.no_grad():
+        got = sim.rollout(z0)[0].numpy() * fitted.y_scale + fitted.y_mean
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5)
+
+
+def test_standard_day_correction_factors_and_raw_unit_predictions():
+    from enginebench.methods.moe import correction_factors
+
+    U = np.array([[101.325 * 0.9, 288.15 * 1.21, 5.0], [101.325, 288.15, 5.0]])
+    fu, fy = correction_factors({"WF": {"P0": [101.325, 1.0], "T1": [288.15, 0.5]}}, ["P0", "T1", "COL"], ["WF"], U)
+    np.testing.assert_allclose(fy[:, 0], [0.9 * 1.1, 1.0], rtol=1e-12)  # delta sqrt(theta)
+    np.testing.assert_array_equal(fu, 1.0)
+    fu, _ = correction_factors({"COL": {"P0": [101.325, -1.0]}}, ["P0", "T1", "COL"], ["WF"], U)
+    np.testing.assert_allclose(fu[:, 2], [1 / 0.9, 1.0], rtol=1e-12)
+    with pytest.raises(MethodError, match="<= 0 at row 1"):
+        correction_factors({"WF": {"COL": [1.0, 1.0]}}, ["COL"], ["WF"], np.array([[1.0], [-1.0]]))
+    with pytest.raises(MethodError, match="neither a target"):
+        correction_factors({"NG": {"COL": [1.0, 1.0]}}, ["COL"], ["WF"], np.ones((2, 1)))
+    # a target that is (an uncorrected system's output) x a known input factor: the corrected fit is the
+    # uncorrected fit of the original data, and its predictions come back multiplied by the factor
+    data = two_regime_samples(11, 3, 300)
+    k = [1.0 + 0.2 * np.sin(0.05 * s.t) for s in data.segments]
+    segs = tuple(replace(s, U=np.c_[s.U, f], y=s.y * f[:, None], y0=s.y0 * f[0]) for s, f in zip(data.segments, k))
+    scaled = replace(data, segments=segs, input_names=data.input_names + ("p",))
+    opts = dict(scheduler=["v"], expert_inputs=["u", "v"], batch_size=2048, device="cpu", dtype="float64")
+    hp = {"n_experts": 2, "epochs": 30, "lr": 1e-2}
+    plain = MoE(**opts)
+    ref = plain.predict(plain.fit(data, hp, np.random.default_rng(0)), data.without_targets())
+    corrected = MoE(**opts, correct={"z": {"p": [1.0, 1.0]}})
+    pred = corrected.predict(corrected.fit(scaled, hp, np.random.default_rng(0)), scaled.without_targets())
+    for p, r, f in zip(pred, ref, k):
+        np.testing.assert_allclose(p[:, 0], r[:, 0] * f, rtol=1e-9, atol=1e-12)
 
 
 def test_schedulers_are_held_at_the_edge_of_their_training_range(model):
