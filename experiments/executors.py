@@ -28,15 +28,7 @@ _CTX: Context | None = None
 
 def _init_worker(blob: bytes, plugins: tuple[str, ...], threads: int) -> None:
     global _CTX
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(threads)
-    try:
-        import torch
-
-        torch.set_num_threads(threads)
-    except ImportError:  # pragma: no cover - torch is a core dependency
-        pass
+    _limit_threads(threads)
     if plugins:
         from enginebench.methods.registry import load_plugin_file
 
@@ -130,6 +122,17 @@ def _dask_context(payload: _Payload) -> Context:
 
 
 def _limit_threads(threads: int) -> None:
+    """At most ``threads`` BLAS/OpenMP/torch threads in this worker process.
+
+    threadpoolctl limits only the libraries already loaded, and numpy and scipy each bring
+    their own OpenBLAS: both are imported here rather than relied on being imported by
+    then. (Left at the core count, scipy's LAPACK in two workers on two cores
+    oversubscribes them; OpenBLAS's thread hand-offs then made one tridiagonalisation
+    10-50x slower in a measurement.)
+    """
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+    import sklearn.metrics.pairwise  # noqa: F401  (its OpenMP runtime)
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(threads)

@@ -44,3 +44,14 @@ def toy_spec(dataset: str | Path, **changes) -> ExperimentSpec:
     }
     raw.update(changes)
     return from_dict(raw, origin="test")
+
+
+def thread_limits_after_worker_setup(threads: int) -> list[tuple[str, int]]:
+    """(library, threads) of every BLAS/OpenMP pool and torch after a worker's thread limit (run in a fresh process)."""
+    import torch
+    from threadpoolctl import threadpool_info
+
+    from enginebench.experiments.executors import _limit_threads
+
+    _limit_threads(threads)
+    return [(info["filepath"], info["num_threads"]) for info in threadpool_info()] + [("torch", torch.get_num_threads())]

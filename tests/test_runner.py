@@ -271,3 +271,17 @@ lambda_grid = [-3, -1, 5]
     assert out.returncode == 0, out.stderr
     assert len(run.finished_jobs()) == 16 and run.info()["status"] == "finished"
     assert not list(jobs_dir.glob(".*"))  # no temporary file left behind
+
+
+def test_worker_thread_limit_reaches_every_blas_library():
+    """A fresh worker process: numpy's and scipy's OpenBLAS (and OpenMP, torch) all run 1 thread
+    (each library otherwise starts with one thread per core)."""
+    import concurrent.futures
+    import multiprocessing
+
+    from helpers import thread_limits_after_worker_setup
+
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        limits = pool.submit(thread_limits_after_worker_setup, 1).result()
+    assert any("scipy" in path for path, _ in limits), limits  # scipy's OpenBLAS is among them
+    assert all(n == 1 for _, n in limits), limits
