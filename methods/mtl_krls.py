@@ -216,8 +216,7 @@ class MTLKRLS(KRLS):
             ths, ti = np.unique(triples[idx, 2], return_inverse=True)
             spectral = Spectral.from_kernel(K, overwrite=True)
             _, b, _ = mtl_coefficients(spectral.s, spectral.project(yc), spectral.project(pc), lams, ths)
-            out[idx] = spectral.predict_coeffs(Ke, b[:, li, ti, :])
-        out += offset
+            out[idx] = spectral.predict_coeffs(Ke, b[:, li, ti, :]) + offset
         return out
 
 

@@ -124,19 +124,16 @@ class _Householder:
         """sum_r w_jr (K + mu_jr I)^-1 B, or K_eval times it: (n or m, J, k)."""
         n, k = B.shape
         J = len(shifts)
-        uniq, inv = np.unique(shifts, return_inverse=True)
-        inv = inv.reshape(shifts.shape)
         Z = self._apply("L", "T", B)
-        Y = np.empty((n, len(uniq), k))
-        for i, mu in enumerate(uniq):
-            Y[:, i] = self.solve(Z, float(mu))
-        W = Y[:, inv[:, 0]] * weights[None, :, 0, None]
-        for r in range(1, shifts.shape[1]):
-            W += Y[:, inv[:, r]] * weights[None, :, r, None]
+        Wt = np.zeros((J, k, n))  # one contiguous row per (grid point, column): W = Wt.reshape(J k, n).T
+        for j in range(J):
+            for mu, w in zip(shifts[j], weights[j]):
+                Wt[j] += w * self.solve(Z, float(mu)).T
+        W = Wt.reshape(J * k, n).T  # (n, J k), Fortran-ordered: no copy for LAPACK
         if K_eval is not None and len(K_eval) < J * k:  # transform the smaller side
-            return (self._apply("R", "N", K_eval) @ W.reshape(n, J * k)).reshape(-1, J, k)
-        X = self._apply("L", "N", W.reshape(n, J * k)).reshape(n, J, k)
-        return X if K_eval is None else (K_eval @ X.reshape(n, J * k)).reshape(-1, J, k)
+            return (self._apply("R", "N", K_eval) @ W).reshape(-1, J, k)
+        X = self._apply("L", "N", W)
+        return X.reshape(n, J, k) if K_eval is None else (K_eval @ X).reshape(-1, J, k)
 
 
 def householder_ridge(K: np.ndarray, B: np.ndarray, lambdas: np.ndarray, overwrite: bool = False) -> np.ndarray:
