@@ -210,7 +210,7 @@ class MTLKRLS(KRLS):
             if self.options["predict_with"] == "shared":
                 shifts, weights = shared_poles(triples[idx, 1], triples[idx, 2])
                 pred, _ = shifted_solutions(K, yc + pc, shifts, weights, K_eval=Ke, overwrite=True)
-                out[idx] = pred.transpose(1, 0, 2)
+                out[idx] = pred.transpose(1, 0, 2) + offset
                 continue
             lams, li = np.unique(triples[idx, 1], return_inverse=True)
             ths, ti = np.unique(triples[idx, 2], return_inverse=True)
