@@ -387,6 +387,8 @@ class SINDy(Method):
             "equations_raw": [f"{l} = {_format_terms(row, raw_names)}" for l, row in zip(lhs, raw)],
             "term_count": int(np.count_nonzero(fitted.coef)),
             "terms_per_equation": [int(c) for c in np.count_nonzero(fitted.coef, axis=1)],
+            # states whose equation lost every term: dx/dt = 0, simulated as their initial value held
+            "constant_states": [n for n, row in zip(fitted.state_names, fitted.coef) if not np.any(row)],
             "library_size": int(fitted.powers.shape[0]),
             "degree": int(fitted.params["degree"]),
             "threshold": float(fitted.params["threshold"]),
@@ -509,6 +511,13 @@ class SINDy(Method):
         notes += sorted({str(w.message) for w in caught})
         coef = np.array(model.coefficients(), dtype=np.float64)
         powers = np.asarray(model.feature_library.powers_, dtype=np.int64)
+        empty = [n for n, row in zip(train.target_names, coef) if not np.any(row)]
+        if empty:
+            notes.append(
+                f"every term of d({', '.join(empty)})/dt was thresholded away (threshold {p['threshold']:g}): the model is "
+                "dx/dt = 0, so each prediction is the segment's initial value held constant (a flat line that is "
+                "not a divergence); lower the threshold for a model with terms"
+            )
         return SINDyFit(
             model=model, coef=coef, powers=powers, state_mean=prep.state_mean, state_std=prep.state_std,
             control_mean=prep.control_mean, control_std=prep.control_std, lower=prep.lower, upper=prep.upper,

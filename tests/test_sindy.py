@@ -325,3 +325,21 @@ def test_errors_name_the_problem():
         SINDy(derivative="tvx")
     with pytest.raises(MethodError, match="unknown option"):
         SINDy(bogus=1)
+
+
+def test_a_threshold_that_removes_every_term_gives_a_flagged_flat_line_not_a_divergence():
+    """The turboshaft WF quick experiment's threshold 0.1 emptied the model: dx/dt = 0 is simulated exactly
+    as y0 held (no envelope is left, nothing is flagged diverged) and describe/notes say why."""
+    m = SINDy()
+    fitted = m.fit(LINEAR, {"degree": 1, "threshold": 1e3, "alpha": 1e-4}, np.random.default_rng(0))
+    d = m.describe(fitted)
+    assert d["term_count"] == 0 and d["constant_states"] == ["y"]
+    assert any("thresholded away" in n and "not a divergence" in n for n in d["notes"])
+    pred = m.predict(fitted, LINEAR.without_targets())
+    assert not pred.diverged.any()
+    for p, s in zip(pred, LINEAR.segments):
+        assert np.ptp(p[:, 0]) == 0.0  # exactly flat
+        assert p[0, 0] == pytest.approx(s.y0[0], rel=1e-12)  # at y0 (standardise / unstandardise round trip)
+    # a model with terms lists no constant state
+    fitted = m.fit(LINEAR, {"degree": 1, "threshold": 0.05, "alpha": 1e-4}, np.random.default_rng(0))
+    assert m.describe(fitted)["constant_states"] == []
