@@ -6,10 +6,13 @@ a laptop; the project's target is at least 1000 x on 2 cores). Each model is fit
 once on training trajectories of the published split (not timed for SINDy), then every
 test trajectory is simulated open loop from its measured initial output in one batched
 call (timed, best of ``--repeats``). The MoE training time is timed separately on the
-training rows with the default hyperparameters (or ``--epochs``).
+training rows with the default hyperparameters (or ``--epochs``). The MoE runs with the
+options of the experiment turboshaft-wf (``--moe-options experiment``, for target WF: input
+derivatives, standard-day correction, output-error start, simulation-error term) or the
+method's defaults (``--moe-options default``, seed 003's derivative-only training).
 
 Usage: python benchmarks/turboshaft_speed.py [--size full|small] [--target WF|TRQ] [--threads N]
-       [--fit-rows N] [--train-rows N] [--epochs N] [--device cpu|cuda]
+       [--fit-rows N] [--train-rows N] [--epochs N] [--device cpu|cuda] [--moe-options experiment|default]
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from enginebench.datasets import catalog
 from enginebench.datasets.samples import make_samples
 from enginebench.datasets.splits import make_splits
 from enginebench.experiments.jobs import subsample_segments
+from enginebench.experiments.spec import load_spec
 from enginebench.methods.moe import HYPERPARAMETERS, MoE
 from enginebench.methods.sindy import SINDy
 
@@ -45,11 +49,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--target", default="WF")
     parser.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)), help="CPU threads for torch/BLAS")
     parser.add_argument("--fit-rows", type=int, default=30000, help="training rows (whole trajectories) for the simulated models")
-    parser.add_argument("--train-rows", type=int, default=0, help="rows for the MoE training-time measurement (0 = all training rows)")
+    parser.add_argument("--train-rows", type=int, default=load_spec("turboshaft-wf").train_size,
+                        help="rows for the MoE training-time measurement (default: turboshaft-wf's train_size; 0 = all training rows)")
     parser.add_argument("--epochs", type=int, default=int(HYPERPARAMETERS["epochs"]))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--moe-options", choices=["experiment", "default"], default="experiment",
+                        help="MoE options of the experiment turboshaft-wf (target WF only) or the method's defaults")
     args = parser.parse_args(argv)
 
     torch.set_num_threads(args.threads)
@@ -93,6 +100,9 @@ def main(argv: list[str] | None = None) -> None:
                   f"{len(part) / sub_wall:14,.0f} samples/s  ({len(keep)} trajectories, {sub_s / 3600:.2f} h)")
 
     opts = {"device": args.device, "cpu_threads": args.threads}
+    if args.moe_options == "experiment" and args.target == "WF":
+        opts = {**load_spec("turboshaft-wf").method_options.get("moe", {}), **opts}
+    print(f"MoE options: {', '.join(f'{k}={v}' for k, v in opts.items())}")
     moe = MoE(**opts)
     hp = {"epochs": args.epochs}
     fitted = moe.fit(train, hp, rng)
