@@ -125,11 +125,13 @@ class _Householder:
         n, k = B.shape
         J = len(shifts)
         Z = self._apply("L", "T", B)
-        Wt = np.zeros((J, k, n))  # one contiguous row per (grid point, column): W = Wt.reshape(J k, n).T
-        for j in range(J):
-            for mu, w in zip(shifts[j], weights[j]):
-                Wt[j] += w * self.solve(Z, float(mu)).T
-        W = Wt.reshape(J * k, n).T  # (n, J k), Fortran-ordered: no copy for LAPACK
+        uniq, inv = np.unique(shifts, return_inverse=True)
+        inv = inv.reshape(shifts.shape)
+        Y = np.stack([self.solve(Z, float(mu)) for mu in uniq], axis=1)  # (n, S, k)
+        W = Y[:, inv[:, 0]] * weights[None, :, 0, None]
+        for r in range(1, shifts.shape[1]):
+            W += Y[:, inv[:, r]] * weights[None, :, r, None]
+        W = W.reshape(n, J * k)
         if K_eval is not None and len(K_eval) < J * k:  # transform the smaller side
             return (self._apply("R", "N", K_eval) @ W).reshape(-1, J, k)
         X = self._apply("L", "N", W)
