@@ -10,6 +10,16 @@ Prediction integrates all segments at once (padded, fixed step, RK4 or Euler at 
 data's sample times) from the measured y0, and never reads a measured output after t0.
 A trajectory that goes non-finite or leaves ``envelope`` times the training range of y
 is stopped, held and flagged in ``SegmentPredictions.diverged``.
+
+A derivative fit weights the fast dynamics and can leave the slow pole, and with it every
+static gain, undetermined: when a controller integrates an error (the turboshaft FADEC's
+PI on NR), dWF/dt is explained by the error alone and the fitted own-state coefficient
+lands near 0 or on the wrong side, so the open-loop simulation drifts. Options that
+address it, off by default (seed 003's training): ``init="output_error"`` starts every
+expert at the LTI model whose open-loop simulation best fits the training trajectories;
+``max_time_constant`` keeps every own-state coefficient <= -1/max_time_constant
+(frozen-stability margin); ``sim_weight`` adds the simulation error of short windows to
+the loss; ``correct`` models standard-day corrected columns (WF / (delta sqrt(theta))).
 """
 
 from __future__ import annotations
@@ -354,6 +364,10 @@ class MoE(Method):
             "local_systems": systems,
             "frozen_stability": frozen_stability(fitted),
             "warm_start": {k: v for k, v in fitted.init_info.items() if k != "theta"},
+            # local systems are in corrected units for the columns named here (option correct)
+            "corrected": {c: dict(by) for c, by in (fitted.options.get("correct") or {}).items()},
+            "max_time_constant_s": fitted.options.get("max_time_constant"),
+            "sim_weight": fitted.options.get("sim_weight", 0.0),
             "final_loss": fitted.loss_history[-1] if fitted.loss_history else None,
         }
 

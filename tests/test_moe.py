@@ -501,6 +501,8 @@ def test_margin_and_output_error_start_and_simulation_loss(train, test_data):
     assert verdict["max_state_coefficient"] <= -2.0 + 1e-9 and verdict["stable"]
     d = method.describe(fitted)
     assert d["warm_start"]["init"] == "output_error" and d["warm_start"]["time_constant_s"] == [pytest.approx(0.5)]
+    assert d["max_time_constant_s"] == 0.5 and d["sim_weight"] == 1.0 and d["corrected"] == {}
+    json.dumps(d)
     pred = method.predict(fitted, test_data.without_targets())
     assert not pred.diverged.any() and np.isfinite(np.concatenate(list(pred))).all()
     with pytest.raises(MethodError, match="max_time_constant bounds own-state coefficients"):
