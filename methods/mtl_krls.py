@@ -39,6 +39,8 @@ is offered for comparison. The PM's prediction is also an input feature
 
 from __future__ import annotations
 
+import itertools
+import operator
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -222,14 +224,15 @@ class MTLKRLS(KRLS):
 
 def _grid_triples(grid: Sequence[Params]) -> np.ndarray:
     """(gamma, lambda, theta) of every grid point, (G, 3), checked positive; vectorised for 41^3 grids."""
-    expected = set(HYPERPARAMETERS)
-    for params in grid:
-        if params.keys() != expected:
-            _params(params)  # raises the precise message
+    values = operator.itemgetter(*HYPERPARAMETERS)
     try:
-        triples = np.array([[p["gamma"], p["lambda"], p["theta"]] for p in grid], dtype=np.float64).reshape(-1, 3)
-    except (TypeError, ValueError):
+        if any(len(p) != len(HYPERPARAMETERS) for p in grid):
+            raise KeyError
+        flat = np.fromiter(itertools.chain.from_iterable(map(values, grid)), dtype=np.float64,
+                           count=len(HYPERPARAMETERS) * len(grid))
+    except (KeyError, TypeError, ValueError):  # the per-point check names what is wrong
         return np.array([_params(p) for p in grid], dtype=np.float64).reshape(-1, 3)
+    triples = flat.reshape(-1, 3)
     for j, name in enumerate(HYPERPARAMETERS):
         check_positive(triples[:, j], name)
     return triples

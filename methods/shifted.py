@@ -308,7 +308,10 @@ def shifted_solutions(
                 continue
             C = np.einsum("sjr,jr->sj", U[:, inv[good]], weights[good])
             left = basis.T if K_eval is None else K_eval @ basis.T
-            out[:, good, c] = left @ C
+            if good.all():  # a slice, not a masked scatter
+                out[:, :, c] = left @ C
+            else:
+                out[:, good, c] = left @ C
             todo[good, c] = False
     counts["krylov"] = int((~todo).sum())
     rest = np.flatnonzero(todo.any(axis=1))

@@ -170,3 +170,17 @@ def test_needs_a_physical_model(toy):
         MTLKRLS().fit(train, {"gamma": 1.0, "lambda": 1.0, "theta": 1.0}, np.random.default_rng(0))
     with pytest.raises(MethodError, match="predict_with must be 'shared' or 'task'"):
         MTLKRLS(predict_with="both")
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"gamma": 1.0, "lambda": 1.0}, "method 'mtl-krls': hyperparameter(s) theta missing from"),
+    ({"gamma": 1.0, "lambda": 1.0, "theta": 1.0, "delta": 2}, "method 'mtl-krls': unknown hyperparameter(s) delta"),
+    ({"gamma": 1.0, "lambda": -1.0, "theta": 1.0}, "hyperparameter 'lambda' must be a positive finite number, got -1.0"),
+    ({"gamma": 1.0, "lambda": 1.0, "theta": "a"}, "hyperparameter 'theta' must be a positive number, got 'a'"),
+])
+def test_a_bad_grid_point_among_many_is_named(toy_samples, bad, message):
+    train, test = toy_samples
+    grid = [{"gamma": 1.0, "lambda": 0.1, "theta": 1.0}] * 50 + [bad]
+    with pytest.raises(MethodError) as err:
+        MTLKRLS().predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert str(err.value).startswith(message)
