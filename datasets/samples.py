@@ -27,7 +27,11 @@ class SegmentSamples:
     ``X`` holds one row per evaluated time step (``rows`` gives its position in the
     raw segment); ``U`` and ``t`` hold the raw run-time inputs and time over the whole
     segment, for physical models and simulators. ``y`` is absent when the method is
-    asked to predict; ``y0`` (simulation mode) is the measured output at the first row.
+    asked to predict; ``y0`` (simulation mode) is the measured output at the segment's
+    first raw row. ``y_init`` (simulation mode) holds the measured outputs of the state
+    initialisation window, raw rows ``0 .. N-1``, shape (N, targets); the evaluated rows
+    then start at N, so a simulating method may use them to set its state and never sees
+    a measured output after them. N = 0 (the default) gives an empty window and y0 only.
     """
 
     id: str
@@ -38,6 +42,7 @@ class SegmentSamples:
     y: np.ndarray | None = None
     y0: np.ndarray | None = None
     Z: np.ndarray | None = None
+    y_init: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -57,6 +62,8 @@ class Samples:
     internal_names: tuple[str, ...] = ()
     units: dict[str, str] = field(default_factory=dict)
     physical_model: Any = None
+    init_samples: int = 0
+    """Simulation mode: samples at the start of each evaluated segment that set the state (see ``y_init``)."""
 
     def __len__(self) -> int:
         return sum(len(s) for s in self.segments)
@@ -87,7 +94,7 @@ class Samples:
             raise DataError(f"no feature {name!r}; features are {', '.join(self.feature_names)}") from None
 
     def without_targets(self) -> "Samples":
-        """The view handed to ``Method.predict``: targets removed (initial outputs kept for simulation)."""
+        """The view handed to ``Method.predict``: targets removed (y0 and the init window ``y_init`` kept)."""
         return replace(self, segments=tuple(replace(s, y=None, Z=None) for s in self.segments))
 
     def take(self, index: np.ndarray) -> "Samples":
@@ -299,7 +306,7 @@ class SamplePool:
     """
 
     def __init__(self, raw: RawSegments, targets: Sequence[str], mode: str = "static", window: float = 0.0, *,
-                 physical_model: Any = None) -> None:
+                 physical_model: Any = None, init_samples: int = 0) -> None:
         if mode not in MODES:
             raise DataError(f"unknown evaluation mode {mode!r}; use one of {', '.join(MODES)}")
         targets = list(targets)
@@ -316,20 +323,32 @@ class SamplePool:
             raise DataError(f"window {window} s is not a multiple of the sample period {raw.dt} s")
         if mode != "window" and lags:
             raise DataError(f"a window of {window} s needs mode 'window' (mode is {mode!r})")
+        if isinstance(init_samples, bool) or int(init_samples) != init_samples or init_samples < 0:
+            raise DataError(f"init_samples must be a whole number >= 0, got {init_samples!r}")
+        init_samples = int(init_samples)
+        if init_samples and mode != "simulation":
+            raise DataError(f"init_samples = {init_samples} needs mode 'simulation' (mode is {mode!r})")
         for seg in raw.segments:
             if len(seg.t) <= lags:
                 raise DataError(
                     f"dataset {raw.dataset!r}, segment {seg.id!r}: {len(seg.t)} rows, shorter than the window of "
                     f"{lags + 1} samples ({window} s); drop short segments or use a shorter window"
                 )
+            if len(seg.t) <= init_samples:
+                raise DataError(
+                    f"dataset {raw.dataset!r}, segment {seg.id!r}: {len(seg.t)} rows, not longer than the state "
+                    f"initialisation window init_samples = {init_samples}; lower init_samples or drop the segment"
+                )
         self.raw = raw
         self.target_names = tuple(targets)
         self.mode = mode
         self.window = float(window)
         self.lags = lags
+        self.init_samples = init_samples
         self.physical_model = physical_model
         self._target_cols = [raw.outputs.index(t) for t in targets]
-        self.segment_sizes = np.array([len(s.t) - lags for s in raw.segments], dtype=np.int64)
+        self._skip = lags + init_samples  # raw rows before the first evaluated one (only one of the two is > 0)
+        self.segment_sizes = np.array([len(s.t) - self._skip for s in raw.segments], dtype=np.int64)
         self._offsets = np.r_[0, np.cumsum(self.segment_sizes)]
         names = lagged_feature_names(raw.inputs, targets, lags) if mode == "window" else list(raw.inputs)
         self.feature_names = tuple(names)
@@ -354,11 +373,13 @@ class SamplePool:
         seg = self.raw.segments[k]
         Y = seg.Y[:, self._target_cols]
         n = len(seg.t)
-        rows = np.arange(self.lags, n) if local is None else np.asarray(local, dtype=np.int64) + self.lags
-        whole = local is None and self.lags == 0
+        rows = np.arange(self._skip, n) if local is None else np.asarray(local, dtype=np.int64) + self._skip
+        whole = local is None and self._skip == 0
         X = seg.U if whole else np.ascontiguousarray(self._features(seg, Y, rows))
+        sim = self.mode == "simulation"
         return SegmentSamples(id=seg.id, X=X, rows=rows, U=seg.U, t=seg.t, y=Y[rows],
-                              y0=Y[0] if self.mode == "simulation" else None, Z=seg.Z)
+                              y0=Y[0] if sim else None, Z=seg.Z,
+                              y_init=Y[:self.init_samples] if sim else None)
 
     def _samples(self, segments: Sequence[SegmentSamples]) -> Samples:
         raw = self.raw
@@ -366,6 +387,7 @@ class SamplePool:
             segments=tuple(segments), mode=self.mode, window=self.window, dt=raw.dt,
             feature_names=self.feature_names, input_names=raw.inputs, target_names=self.target_names,
             internal_names=raw.internals, units=dict(raw.units), physical_model=self.physical_model,
+            init_samples=self.init_samples,
         )
 
     def materialize(self) -> Samples:

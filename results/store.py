@@ -278,6 +278,28 @@ class Run:
             raise StoreError(f"run {self.id}: job {key} has no file {path}; {self._resume_hint()}")
         return self._read_job(path)[1]
 
+    def job_notes(self) -> dict[str, dict[tuple[str, str], int]]:
+        """What the run's jobs said, counted: ``{"failed": {(method, reason): n}, "warnings": {(method, text): n}}``.
+
+        Failure reasons come from each failed job's ``reason``; warnings from each job's
+        ``warnings`` list (a selected hyperparameter at the edge of its grid, a model that
+        kept no term...). Read from the job files' metadata only, so it is cheap.
+        """
+        out: dict[str, dict[tuple[str, str], int]] = {"failed": {}, "warnings": {}}
+        for path in self.job_files():
+            try:
+                meta = self._load_job(path, frame=False)[1]
+            except READ_ERRORS:  # a damaged file is reported by damaged_jobs and by the tables
+                continue
+            method = str(meta.get("method", "?"))
+            if meta.get("status") not in (None, "ok"):
+                key = (method, str(meta.get("reason", "no reason recorded")))
+                out["failed"][key] = out["failed"].get(key, 0) + 1
+            for text in meta.get("warnings", []) or []:
+                key = (method, str(text))
+                out["warnings"][key] = out["warnings"].get(key, 0) + 1
+        return out
+
     def metrics(self) -> pd.DataFrame:
         """All metric rows of all finished jobs (one long frame); a damaged job file is refused by name."""
         files = self.job_files()
