@@ -114,6 +114,35 @@ class Samples:
             out.append(replace(s, X=s.X[local], rows=s.rows[local], y=None if s.y is None else s.y[local]))
         return replace(self, segments=tuple(out))
 
+    def cut(self, pieces: Sequence[tuple[int, int, int]], init_samples: int = 0) -> "Samples":
+        """Contiguous pieces of whole segments as segments of their own: ``(segment, start, stop)`` raw rows.
+
+        For model selection inside records (simulation mode): a validation block is simulated
+        from its own start, its first ``init_samples`` samples set the state (``y_init``) and
+        are not evaluated; a fitting piece keeps every row. Needs whole segments with
+        targets (training samples), never a row subsample.
+        """
+        out = []
+        for k, a, b in pieces:
+            s = self.segments[k]
+            if s.y is None or len(s.rows) != len(s.t) or (len(s.rows) and s.rows[0] != 0):
+                raise DataError(f"segment {s.id!r}: only whole training segments with targets can be cut into blocks")
+            if not 0 <= a < b <= len(s.t) or b - a <= init_samples:
+                raise DataError(f"segment {s.id!r}: block {a}:{b} of {len(s.t)} rows is not longer than "
+                                f"init_samples = {init_samples}")
+            lo = a + init_samples
+            out.append(SegmentSamples(
+                id=f"{s.id}[{a}:{b}]", X=s.X[lo:b], rows=np.arange(init_samples, b - a), U=s.U[a:b], t=s.t[a:b],
+                y=s.y[lo:b], y0=s.y[a], Z=None if s.Z is None else s.Z[a:b], y_init=s.y[a:lo],
+            ))
+        return replace(self, segments=tuple(out), init_samples=init_samples)
+
+    def joined(self, other: "Samples") -> "Samples":
+        """These segments followed by ``other``'s (same targets, mode and features): e.g. training + validation."""
+        if (other.target_names, other.feature_names, other.mode) != (self.target_names, self.feature_names, self.mode):
+            raise DataError("cannot join samples of different targets, features or modes")
+        return replace(self, segments=self.segments + other.segments)
+
     def variables(self) -> dict[str, list[int]]:
         """Feature columns grouped by signal: a lagged series ``x[t]``, ``x[t-1]``... is one variable."""
         groups: dict[str, list[int]] = {}

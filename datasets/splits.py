@@ -6,15 +6,18 @@ parts are Datasets; ``validation`` is present only where the split defines one.
 
 from __future__ import annotations
 
+import difflib
+import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
+import pandas as pd
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.errors import DataError, SpecError
 
-SPLIT_KINDS = ("published", "holdout", "rolling", "groups")
+SPLIT_KINDS = ("published", "holdout", "rolling", "groups", "records")
 
 
 @dataclass(frozen=True)
@@ -128,9 +131,67 @@ def groups(ds: Dataset, column: str, test: list[Any], validation: list[Any] | No
     ))]
 
 
+_ENTRY = re.compile(r"^(?P<name>.*?)\[\s*(?P<start>[+-]?\d*)\s*:\s*(?P<stop>[+-]?\d*)\s*\]$")
+
+
+def parse_record_entry(entry: str) -> tuple[str, int | None, int | None]:
+    """``"rec"`` -> (rec, None, None); ``"rec[100:-50]"`` -> (rec, 100, -50): a record name and a Python slice."""
+    text = entry.strip()
+    m = _ENTRY.match(text)
+    if m is None:
+        if "[" in text or "]" in text:
+            raise SpecError(f"split records: {entry!r} is not a record name or NAME[start:stop] (sample indices, "
+                            "Python slice semantics, no step), e.g. \"est[1000:]\"")
+        return text, None, None
+    to_int = lambda v: int(v) if v not in ("", "+", "-") else None  # noqa: E731
+    return m.group("name").strip(), to_int(m.group("start")), to_int(m.group("stop"))
+
+
+def records(ds: Dataset, train: Sequence[str], test: Sequence[str], validation: Sequence[str] | None = None
+            ) -> list[Split]:
+    """Split by records (segments): each part lists record names, or index slices of them (``"rec[40650:]"``).
+
+    A record is a segment of the dataset (a file, a column set of a wide file, a value of
+    its record column). A sliced entry becomes a segment named as written; slices follow
+    Python semantics (negative indices count from the end). No two entries may share a
+    sample, within a part or across parts.
+    """
+    bounds = {sid: (a, b) for sid, a, b in ds.segment_bounds()}
+    used: dict[str, list[tuple[int, int, str, str]]] = {}
+    frames: dict[str, list[pd.DataFrame]] = {}
+    for part, entries in (("train", train), ("validation", validation or []), ("test", test)):
+        if part != "validation" and not entries:
+            raise SpecError(f"split records: the {part} list is empty; name at least one record")
+        for entry in entries:
+            name, start, stop = parse_record_entry(entry)
+            if name not in bounds:
+                known = list(bounds)
+                shown = ", ".join(known[:12]) + (f" ... ({len(known)} records)" if len(known) > 12 else "")
+                close = difflib.get_close_matches(name, known, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise SpecError(f"split records: unknown record {name!r} in {part}{hint}; records of dataset "
+                                f"{ds.name!r}: {shown}")
+            a, b = bounds[name]
+            lo, hi, _ = slice(start, stop).indices(b - a)
+            if hi - lo < 2:
+                raise SpecError(f"split records: {entry!r} ({part}) selects {max(hi - lo, 0)} sample(s) of record "
+                                f"{name!r} ({b - a} samples); a part needs at least 2")
+            for o_lo, o_hi, o_entry, o_part in used.get(name, []):
+                if lo < o_hi and o_lo < hi:
+                    raise SpecError(
+                        f"split records: {entry!r} ({part}) and {o_entry!r} ({o_part}) share samples "
+                        f"{max(lo, o_lo)}..{min(hi, o_hi) - 1} of record {name!r}; make the slices disjoint")
+            used.setdefault(name, []).append((lo, hi, entry, part))
+            label = name if start is None and stop is None else f"{name}[{lo}:{hi}]"
+            frames.setdefault(part, []).append(ds.frame.iloc[a + lo:a + hi].assign(**{SEGMENT: label}))
+    part_ds = {part: ds.with_frame(pd.concat(fr, ignore_index=True)) for part, fr in frames.items()}
+    return [_nonempty(Split("records", train=part_ds["train"], test=part_ds["test"],
+                            validation=part_ds.get("validation")))]
+
+
 def make_splits(ds: Dataset, kind: str = "published", **options: Any) -> list[Split]:
     """Dispatch on the split kind of an experiment spec."""
-    funcs = {"published": published, "holdout": holdout, "rolling": rolling, "groups": groups}
+    funcs = {"published": published, "holdout": holdout, "rolling": rolling, "groups": groups, "records": records}
     if kind not in funcs:
         raise SpecError(f"unknown split kind {kind!r}; use one of {', '.join(SPLIT_KINDS)}")
     try:

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.samples import SamplePool, Samples
-from enginebench.errors import EngineBenchError, MethodError
+from enginebench.errors import MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.methods.base import Method
@@ -90,6 +90,26 @@ def training_samples(spec: ExperimentSpec, problem: Problem, repetition: int, sp
     return problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
 
 
+def refit_samples(spec: ExperimentSpec, problem: Problem, train: Samples, repetition: int, split: str) -> Samples:
+    """What the selected point is fitted on: the training subsample, plus the validation part after a validation selection.
+
+    ``[selection] refit = true`` (the default) adds the validation part once it has served
+    to select (all of it in simulation mode, whole records from their first sample; in
+    static and window modes a subsample of ``train_size`` rows drawn like the training one).
+    ``refit = false`` keeps the fit on the training part only (the turboshaft seed's protocol).
+    """
+    part = problem.parts.get("validation")
+    if not (spec.selection.refit and spec.selection.kind == "validation" and part is not None):
+        return train
+    if spec.mode == "simulation":
+        raw = getattr(part, "raw", None)
+        whole = (SamplePool(raw, part.target_names, spec.mode, part.window, physical_model=part.physical_model)
+                 .materialize() if raw is not None else part.materialize())
+        return train.joined(whole)
+    rng = np.random.default_rng([spec.seed, repetition, stable_int(split), stable_int("validation")])
+    return train.joined(part.take(subsample(len(part), spec.train_size, rng)))
+
+
 def method_rng(spec: ExperimentSpec, job: Job) -> np.random.Generator:
     """The generator of a job's own draws: depends on (seed, repetition, method)."""
     return np.random.default_rng([spec.seed, job.repetition, stable_int(job.method)])
@@ -138,6 +158,12 @@ def predict_part(method: Method, fitted: Any, part: "Samples | SamplePool", mode
             np.zeros(len(part.segment_sizes), dtype=bool))
 
 
+def one_line_reason(exc: BaseException, limit: int = 300) -> str:
+    """``Type: message`` on one line, cut to ``limit`` characters (a failed job's reason as tables show it)."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Run one job; failures become a 'failed' record with the reason, never an exception."""
     spec = ctx.spec
@@ -153,14 +179,20 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         rng = method_rng(spec, job)
         t0 = time.perf_counter()
         validation = problem.parts["validation"].materialize() if "validation" in problem.parts else None
-        params, search = select(method, train, spec.selection, rng, validation)
+        params, search = select(method, train, spec.selection, rng, validation, spec.init_samples)
         timings["select_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        fitted = method.fit(train, params, rng)
+        fit_on = refit_samples(spec, problem, train, job.repetition, job.split)
+        fitted = method.fit(fit_on, params, rng)
         timings["fit_s"] = time.perf_counter() - t0
-        y_train = train.y
+        y_train = fit_on.y
         scale = float(np.mean(np.abs(y_train)))
-        meta.update(params=params, search=search, describe=method.describe(fitted), n_train=len(train))
+        described = method.describe(fitted)
+        warnings = [*search.pop("warnings", []), *[f"{job.method}: {w}" for w in described.get("warnings", []) or []]]
+        meta.update(params=params, search=search, describe=described, n_train=len(fit_on),
+                    refit_on_validation=fit_on is not train)
+        if warnings:
+            meta["warnings"] = warnings
         for part_name, part in problem.parts.items():
             t0 = time.perf_counter()
             truth_all, guess_all, diverged = predict_part(method, fitted, part, spec.mode)
@@ -181,9 +213,10 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
                 if notes:
                     meta.setdefault("notes", {}).update({f"{part_name}:{k}": v for k, v in notes.items()})
         meta["status"] = "ok"
-    except (EngineBenchError, FloatingPointError, np.linalg.LinAlgError, ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever method code raises is that job's failure, with its reason
         rows = []
-        meta.update(status="failed", reason=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=5))
+        meta.pop("warnings", None)
+        meta.update(status="failed", reason=one_line_reason(exc), traceback=traceback.format_exc(limit=8))
     meta["timings"] = timings
     if not rows:
         rows.append({**base, "split": "-", "metric": "failed", "value": float("nan")})

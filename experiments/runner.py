@@ -25,6 +25,7 @@ from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
 from enginebench.experiments.executors import check_executor, default_workers, run_dask, run_local
 from enginebench.experiments.jobs import Context, Job, Problem
+from enginebench.experiments.selection import record_blocks
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
 from enginebench.results.store import Run, RunStore
@@ -109,10 +110,41 @@ def prepare(spec: ExperimentSpec) -> Context:
             arrays[part_name] = RawSegments.from_dataset(parts.pop(part_name), outputs=spec.targets, internals=internals)
     problems = {}
     for target, window, split in itertools.product(spec.targets, spec.windows, raws):
-        pools = {part: SamplePool(raw, [target], spec.mode, window, physical_model=pm) for part, raw in raws[split].items()}
+        pools = {part: SamplePool(raw, [target], spec.mode, window, physical_model=pm,
+                                  init_samples=0 if part == "train" else spec.init_samples)
+                 for part, raw in raws[split].items()}
         train = pools.pop("train")
         problems[(target, window, split)] = Problem(train=train, parts=pools)
+    check_protocol(spec, problems)
     return Context(spec=spec, dataset=name, problems=problems, methods=methods, dataset_hash=dataset_hash)
+
+
+def check_protocol(spec: ExperimentSpec, problems: dict[tuple[str, float, str], Problem]) -> None:
+    """Spec mistakes that only the data reveal, found before the first job (one SpecError each).
+
+    A selection needing a validation part the split lacks; a simulation-mode bootstrap over
+    fewer than two training records; more k-fold blocks than the training rows can hold
+    (each block needs its own init window and something to score).
+    """
+    sel = spec.selection
+    for (target, window, split), problem in problems.items():
+        where = f"split {split!r}"
+        if sel.kind == "validation" and "validation" not in problem.parts:
+            raise SpecError(f"{where}: [selection] kind = 'validation' needs a validation part, and the split has "
+                            "none; add one to [split] (e.g. validation = [...] or validation_fraction) or use "
+                            "kind = 'kfold'")
+        if sel.kind in ("none", "validation"):
+            continue
+        sizes = problem.train.segment_sizes
+        if spec.mode == "simulation" and sel.kind == "bootstrap" and len(sizes) < 2:
+            raise SpecError(f"{where}: [selection] kind = 'bootstrap' resamples whole training records in "
+                            f"simulation mode, and the training part has {len(sizes)}; use kind = 'kfold' "
+                            "(contiguous time blocks inside the records) or a validation part")
+        if spec.mode == "simulation" and sel.kind == "kfold":
+            record_blocks(sizes, sel.folds, spec.init_samples)
+        elif sel.kind == "kfold" and sel.folds > len(problem.train):
+            raise SpecError(f"{where}: [selection] folds = {sel.folds} but the training part has only "
+                            f"{len(problem.train)} rows; use fewer folds")
 
 
 SPILL_MIN_BYTES = 64 * 2**20

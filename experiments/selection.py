@@ -14,7 +14,7 @@ import numpy as np
 
 from enginebench.datasets.samples import Samples
 from enginebench.datasets.splits import blocked_folds
-from enginebench.errors import MethodError
+from enginebench.errors import MethodError, SpecError
 from enginebench.experiments.spec import Selection
 from enginebench.methods.base import Method, grid_points
 
@@ -29,6 +29,9 @@ def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.nd
     err = np.abs(predictions - data.y[None])
     if criterion == "mae":
         score = err.mean(axis=(1, 2))
+    elif criterion == "rmse":
+        with np.errstate(over="ignore", invalid="ignore"):
+            score = np.sqrt((err ** 2).mean(axis=(1, 2)))
     else:
         sizes = [len(s) for s in data.segments]
         edges = np.r_[0, np.cumsum(sizes)]
@@ -74,12 +77,68 @@ def resample_pairs(n: int, selection: Selection, rng: np.random.Generator,
     return pairs
 
 
+def record_blocks(sizes: np.ndarray, folds: int, init_samples: int = 0
+                  ) -> list[tuple[list[tuple[int, int, int]], list[tuple[int, int, int]]]]:
+    """K-fold inside records: ``folds`` contiguous time blocks over the training rows, cut at record ends.
+
+    Returns, per fold, (fitting pieces, validation pieces) as ``(segment, start, stop)`` raw
+    rows: the validation block and everything else, each record's remainder kept as
+    contiguous pieces (a piece before and a piece after the block). A validation piece
+    must be longer than ``init_samples`` + 1 (its own init window plus something to score),
+    a fitting piece at least 2 rows; shorter ones are left out. SpecError when a fold is
+    left with nothing to score (more folds than the records can hold).
+    """
+    sizes = np.asarray(sizes, dtype=np.int64)
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    edges = np.linspace(0, int(sizes.sum()), folds + 1).round().astype(np.int64)
+    out = []
+    for j in range(folds):
+        lo, hi = edges[j], edges[j + 1]
+        fit, val = [], []
+        for k, (s0, n) in enumerate(zip(starts, sizes)):
+            a, b = max(lo - s0, 0), min(hi - s0, n)
+            if a < b and b - a > init_samples + 1:
+                val.append((k, int(a), int(b)))
+            for c, d in ((0, min(max(a, 0), n)), (max(min(b, n), 0), n)) if a < b else ((0, n),):
+                if d - c >= 2:
+                    fit.append((k, int(c), int(d)))
+        if not val:
+            shortest = int(np.diff(edges).min())
+            raise SpecError(
+                f"selection kfold: fold {j + 1} of {folds} has no block longer than init_samples + 1 = "
+                f"{init_samples + 1} samples (blocks of ~{shortest} samples over {len(sizes)} training record(s)); "
+                f"use fewer folds or a smaller init_samples")
+        out.append((fit, val))
+    return out
+
+
+def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, Any]) -> list[str]:
+    """A warning for each selected value that sits at the edge of a numeric grid of 3 or more values."""
+    out = []
+    for name, values in space.items():
+        try:
+            grid = np.unique(np.asarray(values, dtype=float))
+            value = float(chosen[name])
+        except (TypeError, ValueError, KeyError):
+            continue
+        if len(grid) < 3 or not np.isfinite(grid).all():
+            continue
+        edge = "lower" if value == grid[0] else "upper" if value == grid[-1] else None
+        if edge:
+            out.append(f"{method}: {name} = {value:g} selected at the {edge} edge of its grid "
+                       f"[{grid[0]:g} .. {grid[-1]:g}]; the optimum may lie beyond it: widen the grid")
+    return out
+
+
 def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator,
-           validation: Samples | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+           validation: Samples | None = None, init_samples: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
     """The best grid point for ``method`` on ``train`` and a record of the search.
 
     ``selection.kind == "validation"`` fits on all of ``train`` and scores on the split's
-    own validation part (the turboshaft seed's protocol).
+    own validation part (the turboshaft seed's protocol). ``init_samples`` is the
+    experiment's state initialisation window, given to validation blocks cut from
+    training records (simulation-mode k-fold). The record lists the selected values at
+    the edge of their grid under ``warnings``.
     """
     grid = grid_points(method.search_space(train))
     if not grid:
@@ -91,6 +150,9 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
         if validation is None:
             raise MethodError("selection kind 'validation' needs a split with a validation part")
         parts = [(train, validation)]
+    elif train.mode == "simulation" and selection.kind == "kfold":
+        blocks = record_blocks(train.segment_sizes, selection.folds, init_samples)
+        parts = [(train.cut(fit), train.cut(val, init_samples)) for fit, val in blocks]
     else:
         sizes = np.array([len(s) for s in train.segments]) if train.mode == "simulation" else None
         parts = [(train.take(f), train.take(v)) for f, v in resample_pairs(len(train), selection, rng, sizes)]
@@ -103,4 +165,8 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     if not np.isfinite(mean).any():
         raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
     best = int(np.argmin(mean))
-    return grid[best], {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts)}
+    record = {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts)}
+    warnings = edge_warnings(method.name, method.search_space(train), grid[best])
+    if warnings:
+        record["warnings"] = warnings
+    return grid[best], record

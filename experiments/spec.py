@@ -13,15 +13,17 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
     train_size = 1000                   # training subsample per repetition; 0 = all rows
     interval = "t"                      # t | bootstrap (percentile)
     roles = { TAT = "input" }           # change column roles for this experiment
+    init_samples = 0                    # simulation mode: samples that set each evaluated segment's state
 
-    [split]                             # kind = published | holdout | rolling | groups
+    [split]                             # kind = published | holdout | rolling | groups | records
     kind = "published"
 
     [selection]                         # kind = bootstrap | kfold | validation | none
     kind = "bootstrap"
     resamples = 5
     folds = 5
-    criterion = "mae"                   # mae | rmae
+    criterion = "mae"                   # mae | rmae | rmse
+    refit = true                        # refit the chosen point on training + validation rows
 
     [methods.krls]                      # constructor options of a method
     gamma_grid = [-4, 4, 41]
@@ -29,26 +31,42 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import tomllib
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from enginebench.datasets.samples import MODES
-from enginebench.datasets.splits import SPLIT_KINDS
 from enginebench.errors import SpecError
 
 SELECTION_KINDS = ("bootstrap", "kfold", "validation", "none")
-CRITERIA = ("mae", "rmae")
+CRITERIA = ("mae", "rmae", "rmse")
 INTERVALS = ("t", "bootstrap")
 
 TOP_KEYS = {
     "name", "description", "dataset", "dataset_variant", "targets", "mode", "windows", "methods", "repetitions",
-    "seed", "train_size", "interval", "roles", "split", "selection", "method_options",
+    "seed", "train_size", "interval", "roles", "split", "selection", "method_options", "init_samples",
 }
+SELECTION_KEYS = ("kind", "resamples", "folds", "criterion", "refit")
+
+SPLIT_OPTIONS: dict[str, dict[str, tuple[type | tuple[type, ...], str]]] = {
+    "published": {},
+    "holdout": {"test_fraction": (float, "a fraction in (0, 1)"), "validation_fraction": (float, "a fraction in [0, 1)")},
+    "rolling": {"folds": (int, "a whole number >= 1"), "test_fraction": (float, "a fraction in (0, 1)")},
+    "groups": {"column": (str, "a group column's name"), "test": (list, "a list of group values"),
+               "validation": (list, "a list of group values")},
+    "records": {"train": (list, 'a list of record names, e.g. ["est"] or ["rec[1000:]"]'),
+                "test": (list, "a list of record names"), "validation": (list, "a list of record names")},
+}
+"""Each split kind's options: name -> (type, what it must be). ``kind`` itself is always allowed."""
+SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
+
+DEFAULT_ONLY_IN_HASH = {"init_samples": 0}
+"""Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +75,8 @@ class Selection:
     resamples: int = 5
     folds: int = 5
     criterion: str = "mae"
+    refit: bool = True
+    """After selection, fit the chosen point on the training rows plus the validation part (kind 'validation')."""
 
 
 @dataclass(frozen=True)
@@ -79,10 +99,16 @@ class ExperimentSpec:
     method_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     description: str = ""
     dataset_variant: str = ""
+    init_samples: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["targets"], d["methods"], d["windows"] = list(self.targets), list(self.methods), list(self.windows)
+        for key, default in DEFAULT_ONLY_IN_HASH.items():
+            if d[key] == default:
+                del d[key]
+        if d["selection"]["refit"] is True:  # the default: earlier runs' configs (and hashes) stay as they were
+            del d["selection"]["refit"]
         return d
 
     def config_hash(self) -> str:
@@ -103,6 +129,49 @@ def _expect(cond: bool, origin: str, message: str) -> None:
         raise SpecError(f"{origin}: {message}")
 
 
+def _is(value: Any, kind: type | tuple[type, ...]) -> bool:
+    """Strict type test: a boolean is never a number, an integer is a float."""
+    if isinstance(value, bool):
+        return kind is bool or (isinstance(kind, tuple) and bool in kind)
+    if kind is float:
+        return isinstance(value, (int, float))
+    return isinstance(value, kind)
+
+
+def _unknown_keys(unknown: set[str], allowed: Sequence[str]) -> str:
+    """'unknown key(s) a (did you mean 'b'?); allowed: ...' for a spec table."""
+    parts = []
+    for key in sorted(unknown):
+        close = difflib.get_close_matches(key, list(allowed), n=1)
+        parts.append(key + (f" (did you mean {close[0]!r}?)" if close else ""))
+    return f"unknown key(s) {', '.join(parts)}; allowed: {', '.join(sorted(allowed))}"
+
+
+def check_split(raw: Any, origin: str) -> dict[str, Any]:
+    """The ``[split]`` table, its keys and their types checked for its kind (one SpecError otherwise)."""
+    if isinstance(raw, str):  # split = "holdout" as a plain string: the kind alone
+        raw = {"kind": raw}
+    _expect(isinstance(raw, dict), origin, f"'split' must be a table such as [split] kind = \"holdout\", got {raw!r}")
+    split = dict(raw)
+    split.setdefault("kind", "published")
+    kind = split["kind"]
+    _expect(isinstance(kind, str) and kind in SPLIT_OPTIONS, origin,
+            f"split kind {kind!r} is not one of {', '.join(SPLIT_OPTIONS)}")
+    options = SPLIT_OPTIONS[kind]
+    unknown = set(split) - set(options) - {"kind"}
+    _expect(not unknown, origin, f"[split] kind = {kind!r}: " + _unknown_keys(unknown, [*options, "kind"]))
+    for key in SPLIT_REQUIRED.get(kind, ()):
+        _expect(key in split, origin, f"[split] kind = {kind!r} needs {key!r} ({options[key][1]})")
+    for key, (kind_type, what) in options.items():
+        if key in split:
+            value = split[key]
+            _expect(_is(value, kind_type), origin, f"[split] {key} must be {what}, got {value!r}")
+            if kind_type is list and kind == "records":
+                _expect(all(isinstance(v, str) and v.strip() for v in value), origin,
+                        f"[split] {key} must be a list of record names (strings), got {value!r}")
+    return split
+
+
 def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None = None) -> ExperimentSpec:
     """Validate a spec dict (from TOML) and fill in defaults."""
     raw = dict(raw)
@@ -112,7 +181,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         raw.setdefault("method_options", {}).update(options)
         raw["methods"] = raw.pop("run", list(options))
     unknown = set(raw) - TOP_KEYS - {"run"}
-    _expect(not unknown, origin, f"unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}")
+    _expect(not unknown, origin, _unknown_keys(unknown, sorted(TOP_KEYS)))
     for key in ("dataset", "targets", "methods"):
         _expect(key in raw, origin, f"missing required key {key!r}")
     name = str(raw.get("name", Path(origin).stem))
@@ -132,32 +201,39 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
     mode = raw.get("mode", "static")
     _expect(mode in MODES, origin, f"mode {mode!r} is not one of {', '.join(MODES)}")
     windows = raw.get("windows", [0])
-    windows = [windows] if isinstance(windows, (int, float)) else windows
-    _expect(isinstance(windows, list) and windows and all(isinstance(w, (int, float)) and w >= 0 for w in windows),
+    windows = [windows] if _is(windows, float) else windows
+    _expect(isinstance(windows, list) and windows and all(_is(w, float) and w >= 0 for w in windows),
             origin, "'windows' must be a list of non-negative numbers of seconds")
     _expect(mode == "window" or all(w == 0 for w in windows), origin, f"windows > 0 need mode = 'window' (mode is {mode!r})")
     reps = raw.get("repetitions", 30)
-    _expect(isinstance(reps, int) and reps >= 1, origin, f"'repetitions' must be an integer >= 1, got {reps!r}")
+    _expect(_is(reps, int) and reps >= 1, origin, f"'repetitions' must be an integer >= 1, got {reps!r}")
     seed = raw.get("seed", 0)
-    _expect(isinstance(seed, int) and seed >= 0, origin, f"'seed' must be a non-negative integer, got {seed!r}")
+    _expect(_is(seed, int) and seed >= 0, origin, f"'seed' must be a non-negative integer, got {seed!r}")
     train_size = raw.get("train_size", 1000)
-    _expect(isinstance(train_size, int) and train_size >= 0, origin, f"'train_size' must be an integer >= 0, got {train_size!r}")
+    _expect(_is(train_size, int) and train_size >= 0, origin, f"'train_size' must be an integer >= 0, got {train_size!r}")
+    init_samples = raw.get("init_samples", 0)
+    _expect(_is(init_samples, int) and init_samples >= 0, origin,
+            f"'init_samples' must be a whole number of samples >= 0, got {init_samples!r}")
+    _expect(mode == "simulation" or init_samples == 0, origin,
+            f"init_samples = {init_samples} needs mode = 'simulation' (mode is {mode!r})")
     interval = raw.get("interval", "t")
     _expect(interval in INTERVALS, origin, f"interval {interval!r} is not one of {', '.join(INTERVALS)}")
     roles = raw.get("roles", {})
-    _expect(isinstance(roles, dict), origin, "'roles' must be a table of column = role")
-    split = dict(raw.get("split", {"kind": "published"}))
-    split.setdefault("kind", "published")
-    _expect(split["kind"] in SPLIT_KINDS, origin, f"split kind {split['kind']!r} is not one of {', '.join(SPLIT_KINDS)}")
+    _expect(isinstance(roles, dict) and all(isinstance(v, str) for v in roles.values()), origin,
+            "'roles' must be a table of column = role")
+    split = check_split(raw.get("split", {"kind": "published"}), origin)
     sel_raw = raw.get("selection", {})
     _expect(isinstance(sel_raw, dict), origin, "'selection' must be a table")
-    unknown = set(sel_raw) - {"kind", "resamples", "folds", "criterion"}
-    _expect(not unknown, origin, f"[selection]: unknown key(s) {', '.join(sorted(unknown))}; allowed: kind, resamples, folds, criterion")
+    unknown = set(sel_raw) - set(SELECTION_KEYS)
+    _expect(not unknown, origin, "[selection]: " + _unknown_keys(unknown, SELECTION_KEYS))
     selection = Selection(**sel_raw)
-    _expect(selection.kind in SELECTION_KINDS, origin, f"selection kind {selection.kind!r} is not one of {', '.join(SELECTION_KINDS)}")
-    _expect(selection.criterion in CRITERIA, origin, f"selection criterion {selection.criterion!r} is not one of {', '.join(CRITERIA)}")
-    _expect(isinstance(selection.resamples, int) and selection.resamples >= 1, origin, "selection resamples must be an integer >= 1")
-    _expect(isinstance(selection.folds, int) and selection.folds >= 2, origin, "selection folds must be an integer >= 2")
+    _expect(isinstance(selection.kind, str) and selection.kind in SELECTION_KINDS, origin,
+            f"selection kind {selection.kind!r} is not one of {', '.join(SELECTION_KINDS)}")
+    _expect(isinstance(selection.criterion, str) and selection.criterion in CRITERIA, origin,
+            f"selection criterion {selection.criterion!r} is not one of {', '.join(CRITERIA)}")
+    _expect(_is(selection.resamples, int) and selection.resamples >= 1, origin, "selection resamples must be an integer >= 1")
+    _expect(_is(selection.folds, int) and selection.folds >= 2, origin, "selection folds must be an integer >= 2")
+    _expect(isinstance(selection.refit, bool), origin, f"selection refit must be true or false, got {selection.refit!r}")
     method_options = raw.get("method_options", {})
     _expect(isinstance(method_options, dict) and all(isinstance(v, dict) for v in method_options.values()),
             origin, "[methods.NAME] entries must be tables of options")
@@ -169,6 +245,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         interval=interval, roles=dict(roles), split=split, selection=selection,
         method_options={k: dict(v) for k, v in method_options.items()},
         description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
+        init_samples=init_samples,
     )
 
 

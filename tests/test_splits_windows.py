@@ -42,7 +42,7 @@ def test_leave_groups_out_keeps_groups_on_one_side(toy):
 
 
 def test_split_errors_are_precise(toy):
-    with pytest.raises(SpecError, match=r"unknown split kind 'random'; use one of published, holdout, rolling, groups"):
+    with pytest.raises(SpecError, match=r"unknown split kind 'random'; use one of published, holdout, rolling, groups, records"):
         make_splits(toy, kind="random")
     with pytest.raises(SpecError, match=r"split by 'unit': unknown test group\(s\) g7"):
         groups(toy, "unit", test=["g7"])
