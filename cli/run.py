@@ -89,6 +89,21 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     click.echo(paired_lines(paired_tests(raw, "mae"), "mae"), nl=False)
     for key, why in result.damaged.items():
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
+    from enginebench.results.notes import note_lines
+
+    for line in note_lines(result.run.job_notes()):
+        click.echo(line)  # not through rich: a reason is one line, never wrapped
     if result.n_failed:
-        out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench table {result.run.id}' counts them (n_failed).[/yellow]")
+        out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench runs show {result.run.id}' "
+                  "lists the reasons.[/yellow]")
     out.print(f"run {result.run.id} stored in {result.run.path}")
+    dead = all_failed_methods(raw)
+    if dead:
+        # exit 1, not 2: the input was fine and the run is stored, but a method produced no result at all
+        raise SystemExit(f"error: every job of {', '.join(dead)} failed (reasons above); run {result.run.id} is stored")
+
+
+def all_failed_methods(metrics) -> list[str]:
+    """Methods none of whose jobs succeeded."""
+    status = metrics.groupby("method", sort=False)["status"].agg(lambda s: bool((s != "ok").all()))
+    return [m for m, dead in status.items() if dead]

@@ -277,3 +277,42 @@ def test_any_exception_from_method_code_is_a_failed_job_with_its_reason(recs_fil
     meta = run.job_meta(run.job_files()[0].stem)
     assert meta["status"] == "failed" and meta["reason"] == "KeyError: \"missing column 'zz'\""
     assert run.job_notes()["failed"] == {("test-keyerror", "KeyError: \"missing column 'zz'\""): 1}
+
+
+# -- the run command says why ------------------------------------------------------------------
+def test_run_lists_failure_reasons_and_warnings_and_exits_1_when_a_method_failed_entirely(recs_file, tmp_path,
+                                                                                          monkeypatch):
+    from click.testing import CliRunner
+
+    from enginebench.cli.main import cli
+
+    monkeypatch.setenv("ENGINEBENCH_STORE", str(tmp_path / "runs"))
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'''name = "why"
+dataset = "{recs_file}"
+targets = ["y"]
+mode = "simulation"
+repetitions = 2
+train_size = 0
+init_samples = 10
+[split]
+kind = "records"
+train = ["est"]
+test = ["val"]
+[selection]
+kind = "kfold"
+folds = 2
+[methods.test-probe]
+c_grid = [-2.0, -1.0, 0.0]
+[methods.test-keyerror]
+''')
+    result = CliRunner().invoke(cli, ["run", str(exp), "-j", "1", "--quiet"])
+    assert result.exit_code == 1, result.output
+    out = result.output
+    assert "failed (2 jobs): test-keyerror: KeyError: \"missing column 'zz'\"" in out
+    assert ("warning (2 jobs): test-probe: c = 0 selected at the upper edge of its grid [-2 .. 0]; the optimum may lie "
+            "beyond it: widen the grid") in out
+    assert out.strip().splitlines()[-1].startswith("error: every job of test-keyerror failed (reasons above); run why-")
+    # the same run without the failing method exits 0
+    ok = CliRunner().invoke(cli, ["run", str(exp), "-j", "1", "--quiet", "--methods", "test-probe"])
+    assert ok.exit_code == 0, ok.output
