@@ -312,7 +312,7 @@ c_grid = [-2.0, -1.0, 0.0]
     assert "failed (2 jobs): test-keyerror: KeyError: \"missing column 'zz'\"" in out
     assert ("warning (2 jobs): test-probe: c = 0 selected at the upper edge of its grid [-2 .. 0]; the optimum may lie "
             "beyond it: widen the grid") in out
-    assert out.strip().splitlines()[-1].startswith("error: every job of test-keyerror failed (reasons above); run why-")
+    assert out.strip().splitlines()[-1].startswith("error: every job of test-keyerror failed (reasons above); run 2")
     # the same run without the failing method exits 0
     ok = CliRunner().invoke(cli, ["run", str(exp), "-j", "1", "--quiet", "--methods", "test-probe"])
     assert ok.exit_code == 0, ok.output
