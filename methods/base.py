@@ -26,7 +26,8 @@ def check_log_grid_option(method: str, key: str, spec: Any) -> tuple[float, floa
     """Validate a (low exponent, high exponent, count) grid option; MethodError naming it otherwise."""
     try:
         low, high, num = spec
-        ok = bool(np.isfinite([low, high]).all()) and float(num) == int(num) and int(num) >= 1
+        ok = (not any(isinstance(v, (bool, np.bool_)) for v in (low, high, num))  # true is not a number
+              and bool(np.isfinite([low, high]).all()) and float(num) == int(num) and int(num) >= 1)
     except (TypeError, ValueError):
         ok = False
     if not ok:

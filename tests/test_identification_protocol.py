@@ -316,3 +316,11 @@ c_grid = [-2.0, -1.0, 0.0]
     # the same run without the failing method exits 0
     ok = CliRunner().invoke(cli, ["run", str(exp), "-j", "1", "--quiet", "--methods", "test-probe"])
     assert ok.exit_code == 0, ok.output
+
+
+def test_a_boolean_is_not_a_grid_bound():
+    from enginebench.errors import MethodError
+    from enginebench.methods.base import check_log_grid_option
+
+    with pytest.raises(MethodError, match=r"option gamma_grid=\(-1, True, 3\) must be \(low exponent, high exponent"):
+        check_log_grid_option("krls", "gamma_grid", (-1, True, 3))
