@@ -1,13 +1,20 @@
-"""Point metrics of one prediction against its target (DESIGN sec. 6), vectorised with numpy.
+"""Point metrics of one prediction against its target (DESIGN sec. 6 and 9), vectorised with numpy.
 
-Pooled metrics (MAE, RMSE, R^2, PPMCC, MAPE) treat all rows alike; RMAE is seed
-003's segment-averaged relative MAE, so long segments do not dominate. Every
-input is validated: arrays must be 1-D, equally long, non-empty and finite, and
-a failure names the argument, the segment and the row.
+Pooled metrics (MAE, RMSE, NRMSE, fit, R^2, PPMCC, MAPE) treat all rows alike; RMAE is
+seed 003's segment-averaged relative MAE, so long segments do not dominate; NRMSE and
+fit are also summarised per segment (the identification view: one fit per record).
+Every input is validated: arrays must be 1-D, equally long, non-empty and finite, and a
+failure names the argument, the segment and the row.
+
+Sums of squares and means are formed on values divided by a power of two near their
+largest magnitude (exact scaling, as BLAS's nrm2 does), so data near 1e308 neither
+overflow nor warn; a metric whose value itself does not fit in a double is nan with
+its reason, never inf.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -19,9 +26,13 @@ from enginebench.results.stats import describe
 __all__ = [
     "METRICS",
     "MetricInfo",
+    "bounds",
     "compute_metrics",
+    "fit",
     "mae",
     "mape",
+    "mean_abs",
+    "nrmse",
     "ppmcc",
     "r2",
     "rmae",
@@ -34,23 +45,48 @@ __all__ = [
 
 @dataclass(frozen=True)
 class MetricInfo:
-    """What a metric means and which direction is better (tables bold the best value)."""
+    """What a metric means, which direction is better (tables bold the best value) and its range.
+
+    `low`/`high` are the bounds no value can cross (MAE >= 0, PPMCC in [-1, 1], fit <= 100):
+    tables flag an interval over repetitions that crosses one.
+    """
 
     description: str
     lower_is_better: bool
+    low: float = -math.inf
+    high: float = math.inf
 
 
 METRICS: dict[str, MetricInfo] = {
-    "mae": MetricInfo("mean absolute error, pooled over all rows (target units)", True),
-    "rmse": MetricInfo("root mean squared error, pooled over all rows (target units)", True),
-    "r2": MetricInfo("coefficient of determination 1 - SS_res/SS_tot, pooled", False),
-    "ppmcc": MetricInfo("Pearson correlation of prediction and target, pooled", False),
-    "mape": MetricInfo("mean absolute percentage error, pooled (%)", True),
-    "rmae": MetricInfo("segment-averaged MAE / mean |y| of training data (%)", True),
-    "rmae_seg_sd": MetricInfo("SD (ddof=1) of per-segment RMAE across segments (%)", True),
-    "rmae_seg_median": MetricInfo("median of per-segment RMAE across segments (%)", True),
-    "rmae_seg_iqr": MetricInfo("interquartile range of per-segment RMAE across segments (%)", True),
+    "mae": MetricInfo("mean absolute error, pooled over all rows (target units)", True, low=0.0),
+    "rmse": MetricInfo("root mean squared error, pooled over all rows (target units)", True, low=0.0),
+    "nrmse": MetricInfo("RMSE / standard deviation (ddof=0) of the measured output, pooled (dimensionless)",
+                        True, low=0.0),
+    "fit": MetricInfo("identification fit 100 (1 - ||y - yhat|| / ||y - mean(y)||), pooled (%)", False, high=100.0),
+    "r2": MetricInfo("coefficient of determination 1 - SS_res/SS_tot, pooled", False, high=1.0),
+    "ppmcc": MetricInfo("Pearson correlation of prediction and target, pooled", False, low=-1.0, high=1.0),
+    "mape": MetricInfo("mean absolute percentage error, pooled (%)", True, low=0.0),
+    "rmae": MetricInfo("segment-averaged MAE / mean |y| of training data (%)", True, low=0.0),
+    "rmae_seg_sd": MetricInfo("SD (ddof=1) of per-segment RMAE across segments (%)", True, low=0.0),
+    "rmae_seg_median": MetricInfo("median of per-segment RMAE across segments (%)", True, low=0.0),
+    "rmae_seg_iqr": MetricInfo("interquartile range of per-segment RMAE across segments (%)", True, low=0.0),
+    "nrmse_seg_mean": MetricInfo("mean over segments of each segment's NRMSE (its own output SD)", True, low=0.0),
+    "nrmse_seg_median": MetricInfo("median over segments of each segment's NRMSE", True, low=0.0),
+    "fit_seg_mean": MetricInfo("mean over segments of each segment's fit (%)", False, high=100.0),
+    "fit_seg_median": MetricInfo("median over segments of each segment's fit (%)", False, high=100.0),
+    "fit_seg_iqr": MetricInfo("interquartile range of per-segment fit across segments (%)", True, low=0.0),
 }
+
+
+def bounds(metric: str) -> tuple[float, float]:
+    """(low, high) that no value of `metric` can cross; skill_* <= 1; unknown names are unbounded."""
+    if metric in METRICS:
+        return METRICS[metric].low, METRICS[metric].high
+    if metric.startswith("skill_"):
+        return -math.inf, 1.0
+    if metric == "diverged":
+        return 0.0, math.inf
+    return -math.inf, math.inf
 
 
 def _short(x: float) -> str:
@@ -85,16 +121,90 @@ def _validate(y_true: object, y_pred: object, where: str = "") -> tuple[np.ndarr
     return t, p
 
 
+# -- exact scaling: sums of squares and means that neither overflow nor warn -----------
+
+def _pow2(x: np.ndarray) -> float:
+    """A power of two with max|x| / 2 < it <= max|x| (1.0 for zeros): dividing by it is exact."""
+    m = float(np.max(np.abs(x))) if x.size else 0.0
+    if m == 0.0 or not math.isfinite(m):
+        return 1.0
+    return math.ldexp(1.0, math.frexp(m)[1] - 1)
+
+
+def _mean(x: np.ndarray) -> float:
+    """mean(x) without overflow in the sum (|result| <= max|x|, so it is always finite)."""
+    s = _pow2(x)
+    return float(np.mean(x / s)) * s
+
+
+def _diff(a: np.ndarray, b: np.ndarray | float) -> tuple[np.ndarray, float]:
+    """(d, factor) with a - b = factor * d: d = a - b, or (a - b) / 2 where the difference overflows."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = a - b
+    if np.all(np.isfinite(d)):
+        return d, 1.0
+    return a * 0.5 - np.multiply(b, 0.5), 2.0
+
+
+def _scaled_sq(x: np.ndarray) -> tuple[float, float]:
+    """(s, q) with mean(x^2) = s^2 q: q is the mean square of x / s, a number in [0, 4]."""
+    s = _pow2(x)
+    return s, float(np.mean(np.square(x / s)))
+
+
+def _times(*factors: float) -> float:
+    """The product of non-negative factors, smallest first; inf (never a warning) when it overflows."""
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        out = np.float64(1.0)
+        for f in sorted(factors):
+            out = out * np.float64(f)
+    return float(out)
+
+
+def _sq_ratio(e: np.ndarray, fe: float, c: np.ndarray, fc: float) -> float:
+    """sum((fe e)^2) / sum((fc c)^2) in scaled form (inf when it overflows); c must not be all zero."""
+    se, qe = _scaled_sq(e)
+    sc, qc = _scaled_sq(c)
+    return _times((fe / fc) ** 2, (se / sc) ** 2, qe / qc) if qe else 0.0
+
+
+def mean_abs(values: object) -> float:
+    """mean |values| of finite numbers without overflow in the sum (the RMAE denominator).
+
+    Exact-scaled: finite whenever every value is; jobs use it for the training scale.
+    """
+    x = np.abs(np.asarray(values, dtype=float).ravel())
+    return _mean(x) if x.size else float("nan")
+
+
+def _constant_reason(name: str, t: np.ndarray) -> str | None:
+    """Why `name` (normalised by the output's spread) is undefined for targets `t`, or None."""
+    if np.all(t == t[0]):
+        return (f"{name} is undefined: target constant (all {t.size} values equal {float(t[0])!r}); "
+                "report MAE or RMSE instead")
+    return None
+
+
+def _overflow_reason(name: str) -> str:
+    return (f"{name} is undefined: its value overflows double precision (the data reach about 1e308); "
+            "rescale the target, e.g. change its unit")
+
+
+# -- pooled metrics ---------------------------------------------------------------------
+
 def mae(y_true: object, y_pred: object) -> float:
-    """Mean absolute error, mean(|y_pred - y_true|)."""
+    """Mean absolute error, mean(|y_pred - y_true|); inf only if it exceeds the double range."""
     t, p = _validate(y_true, y_pred)
-    return float(np.mean(np.abs(p - t)))
+    d, f = _diff(p, t)
+    return _times(f, _mean(np.abs(d)))
 
 
 def rmse(y_true: object, y_pred: object) -> float:
-    """Root mean squared error, sqrt(mean((y_pred - y_true)^2))."""
+    """Root mean squared error, sqrt(mean((y_pred - y_true)^2)), computed exact-scaled."""
     t, p = _validate(y_true, y_pred)
-    return float(np.sqrt(np.mean((p - t) ** 2)))
+    d, f = _diff(p, t)
+    s, q = _scaled_sq(d)
+    return _times(f, s, math.sqrt(q))
 
 
 def r2(y_true: object, y_pred: object) -> float:
@@ -103,20 +213,48 @@ def r2(y_true: object, y_pred: object) -> float:
     A constant target has SS_tot == 0 and no R^2: DataError.
     """
     t, p = _validate(y_true, y_pred)
-    ss_tot = float(np.sum((t - t.mean()) ** 2))
-    if ss_tot == 0.0:
+    if np.all(t == t[0]):
         raise DataError(
             f"R^2 is undefined: target constant (all {t.size} values equal {float(t[0])!r}); "
             "report MAE or RMSE instead"
         )
-    return 1.0 - float(np.sum((t - p) ** 2)) / ss_tot
+    e, fe = _diff(p, t)
+    c, fc = _diff(t, _mean(t))
+    return 1.0 - _sq_ratio(e, fe, c, fc)
+
+
+def nrmse(y_true: object, y_pred: object) -> float:
+    """RMSE / standard deviation (ddof=0) of the measured output: 0 is perfect, 1 is the mean's error.
+
+    A constant target has no spread to normalise by: DataError.
+    """
+    t, p = _validate(y_true, y_pred)
+    reason = _constant_reason("NRMSE", t)
+    if reason is not None:
+        raise DataError(reason)
+    e, fe = _diff(p, t)
+    c, fc = _diff(t, _mean(t))
+    return math.sqrt(_sq_ratio(e, fe, c, fc))
+
+
+def fit(y_true: object, y_pred: object) -> float:
+    """The identification fit in %: 100 (1 - ||y - yhat|| / ||y - mean(y)||) = 100 (1 - NRMSE).
+
+    100 is perfect, 0 is as good as the output's own mean, negative is worse. A constant
+    target: DataError.
+    """
+    t, p = _validate(y_true, y_pred)
+    reason = _constant_reason("fit", t)
+    if reason is not None:
+        raise DataError(reason)
+    return 100.0 * (1.0 - nrmse(t, p))
 
 
 def _mape_refusal(t: np.ndarray, floor: float | None) -> str | None:
     """Why MAPE cannot be computed for targets `t`, or None when it can."""
     a = np.abs(t)
     if floor is None:
-        floor = 1e-3 * float(a.mean())
+        floor = 1e-3 * _mean(a)
     else:
         floor = float(floor)
         if not np.isfinite(floor) or floor < 0.0:
@@ -145,7 +283,17 @@ def mape(y_true: object, y_pred: object, *, floor: float | None = None) -> float
     reason = _mape_refusal(t, floor)
     if reason is not None:
         raise DataError(reason)
-    return float(np.mean(np.abs(p - t) / np.abs(t)) * 100.0)
+    return _mape_value(t, p)
+
+
+def _mape_value(t: np.ndarray, p: np.ndarray) -> float:
+    """100 mean(|p - t| / |t|) for targets away from zero; inf if it exceeds the double range."""
+    d, f = _diff(p, t)
+    with np.errstate(over="ignore"):
+        rel = np.abs(d) / np.abs(t)
+    if not np.all(np.isfinite(rel)):
+        return math.inf
+    return _times(f, _mean(rel), 100.0)
 
 
 def ppmcc(y_true: object, y_pred: object) -> float:
@@ -157,18 +305,24 @@ def ppmcc(y_true: object, y_pred: object) -> float:
     t, p = _validate(y_true, y_pred)
     if np.all(t == t[0]) or np.all(p == p[0]):
         return float("nan")
-    # r is scale-free: divide by the largest magnitude first, so that neither the squares of
-    # tiny spreads underflow (np.linalg.norm squares) nor those of huge values overflow
-    t = t / np.max(np.abs(t))
-    p = p / np.max(np.abs(p))
-    tc = t - t.mean()
-    pc = p - p.mean()
+    # centre first, in the data's own units (t - mean(t) is exact for values near their mean,
+    # so a large offset costs no digits), twice to remove the mean's own rounding; then divide
+    # by a power of two near the largest deviation, so that neither the squares of tiny
+    # spreads underflow nor those of huge ones overflow. r is scale-free.
+    tc, pc = _centred(t), _centred(p)
     tn = np.linalg.norm(tc)
     pn = np.linalg.norm(pc)
     if tn == 0.0 or pn == 0.0:
         return float("nan")
     r = float(np.dot(tc / tn, pc / pn))
     return float(np.clip(r, -1.0, 1.0))
+
+
+def _centred(x: np.ndarray) -> np.ndarray:
+    """x - mean(x), centred twice and divided by a power of two near its largest magnitude."""
+    c, _ = _diff(x, _mean(x))
+    c = c - _mean(c)
+    return c / _pow2(c)
 
 
 def _check_scale(train_scale: float) -> float:
@@ -205,10 +359,35 @@ def _segments(
     )
 
 
+def _starts(lengths: np.ndarray) -> np.ndarray:
+    return np.concatenate(([0], np.cumsum(lengths)[:-1]))
+
+
 def _segment_mae(t: np.ndarray, p: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """MAE of each segment from pooled arrays, one vectorised reduction."""
-    starts = np.concatenate(([0], np.cumsum(lengths)[:-1]))
-    return np.add.reduceat(np.abs(p - t), starts) / lengths
+    """MAE of each segment from pooled arrays, one vectorised (exact-scaled) reduction; inf on overflow."""
+    d, f = _diff(p, t)
+    a = np.abs(d)
+    s = _pow2(a)
+    with np.errstate(over="ignore"):
+        return np.add.reduceat(a / s, _starts(lengths)) / lengths * (s * f)
+
+
+def _segment_nrmse(t: np.ndarray, p: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Each segment's RMSE over its own output SD (ddof=0); nan for a segment whose output is constant."""
+    starts = _starts(lengths)
+    seg = np.repeat(np.arange(lengths.size), lengths)
+    st = _pow2(t)
+    means = np.add.reduceat(t / st, starts) / lengths * st
+    c, fc = _diff(t, means[seg])
+    e, fe = _diff(p, t)
+    sc, se = _pow2(c), _pow2(e)
+    ss_c = np.add.reduceat(np.square(c / sc), starts)
+    ss_e = np.add.reduceat(np.square(e / se), starts)
+    constant = np.minimum.reduceat(t, starts) == np.maximum.reduceat(t, starts)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        out = np.sqrt(ss_e / ss_c) * ((se / sc) * (fe / fc))
+    out[constant] = np.nan
+    return out
 
 
 def segment_rmae(
@@ -217,7 +396,8 @@ def segment_rmae(
     """Per-segment RMAE in percent: each segment's MAE / `train_scale` * 100."""
     scale = _check_scale(train_scale)
     t, p, lengths = _segments(segments_true, segments_pred)
-    return _segment_mae(t, p, lengths) / scale * 100.0
+    with np.errstate(over="ignore"):
+        return _segment_mae(t, p, lengths) / scale * 100.0
 
 
 def rmae(
@@ -228,7 +408,7 @@ def rmae(
     `train_scale` is mean |y| over the training data. Averaging per segment keeps
     long segments from dominating (unlike pooled MAE / scale).
     """
-    return float(np.mean(segment_rmae(segments_true, segments_pred, train_scale)))
+    return _mean(segment_rmae(segments_true, segments_pred, train_scale))
 
 
 def segment_summary(values: object) -> dict[str, float]:
@@ -270,50 +450,94 @@ def compute_metrics(
 ) -> tuple[dict[str, float], dict[str, str]]:
     """All metrics for one job: `(values, notes)`.
 
-    `values` has mae, rmse, r2, ppmcc, mape (pooled over all rows), rmae and
-    rmae_seg_sd/median/iqr (over segments), n (rows) and n_segments. A metric
-    that is undefined for this data (MAPE near zero targets, R^2 of a constant
-    target, PPMCC of a constant prediction or target) is nan in `values` and its
-    reason is in `notes` under the same key. Invalid input still raises DataError.
+    `values` has mae, rmse, nrmse, fit, r2, ppmcc, mape (pooled over all rows), rmae and
+    rmae_seg_sd/median/iqr, nrmse_seg_mean/median and fit_seg_mean/median/iqr (over
+    segments), n (rows) and n_segments. A metric that is undefined for this data (MAPE
+    near zero targets; R^2, NRMSE and fit of a constant target; PPMCC of a constant
+    prediction or target; any value beyond the double range) is nan in `values` and its
+    reason is in `notes` under the same key; a note under ``seg_constant`` says which
+    segments with a constant output the per-segment NRMSE/fit summaries leave out.
+    Invalid input still raises DataError; an infinite `train_scale` (a training mean |y|
+    that overflowed) makes the RMAE values nan with a note.
     """
-    scale = _check_scale(train_scale)
+    s = float(train_scale)
+    scale = s if s == math.inf else _check_scale(train_scale)
     t, p, lengths = _segments(segments_true, segments_pred)
     notes: dict[str, str] = {}
-    err = p - t
+    values: dict[str, float] = {"mae": mae(t, p), "rmse": rmse(t, p)}
 
-    try:
-        r2_value = r2(t, p)
-    except EngineBenchError as exc:
-        r2_value = float("nan")
-        notes["r2"] = str(exc)
+    constant = _constant_reason("{}", t)
+    for key, name in (("r2", "R^2"), ("nrmse", "NRMSE"), ("fit", "fit")):
+        if constant is not None:
+            values[key], notes[key] = math.nan, constant.format(name)
+    if constant is None:
+        e, fe = _diff(p, t)
+        c, fc = _diff(t, _mean(t))
+        ratio = _sq_ratio(e, fe, c, fc)
+        values["r2"] = 1.0 - ratio
+        values["nrmse"] = math.sqrt(ratio)
+        values["fit"] = 100.0 * (1.0 - values["nrmse"])
 
-    r_value = ppmcc(t, p)
-    if np.isnan(r_value):
+    values["ppmcc"] = ppmcc(t, p)
+    if np.isnan(values["ppmcc"]):
         which = "target" if np.all(t == t[0]) else "prediction"
         notes["ppmcc"] = f"PPMCC is undefined: {which} constant; no correlation exists"
 
     reason = _mape_refusal(t, mape_floor)
-    if reason is None:
-        mape_value = float(np.mean(np.abs(err) / np.abs(t)) * 100.0)
-    else:
-        mape_value = float("nan")
+    values["mape"] = _mape_value(t, p) if reason is None else math.nan
+    if reason is not None:
         notes["mape"] = reason
 
-    seg = _segment_mae(t, p, lengths) / scale * 100.0
-    summary = segment_summary(seg)
+    with np.errstate(over="ignore"):
+        seg = _segment_mae(t, p, lengths) / scale * 100.0
+    rmae_keys = {"rmae": "mean", "rmae_seg_sd": "sd", "rmae_seg_median": "median", "rmae_seg_iqr": "iqr"}
+    if scale == math.inf:
+        reason = ("RMAE is undefined: mean |y| of the training data overflows double precision; "
+                  "rescale the target, e.g. change its unit")
+        values.update(dict.fromkeys(rmae_keys, math.nan))
+        notes.update(dict.fromkeys(rmae_keys, reason))
+    elif np.all(np.isfinite(seg)):
+        summary = segment_summary(seg)
+        values.update({k: summary[v] for k, v in rmae_keys.items()})
+    else:
+        values.update(dict.fromkeys(rmae_keys, math.inf))  # noted as overflow below
     if lengths.size == 1:
+        values["rmae_seg_sd"] = math.nan
         notes["rmae_seg_sd"] = "SD across segments is undefined: only 1 test segment"
-    values: dict[str, float] = {
-        "mae": float(np.mean(np.abs(err))),
-        "rmse": float(np.sqrt(np.mean(err**2))),
-        "r2": r2_value,
-        "ppmcc": r_value,
-        "mape": mape_value,
-        "rmae": summary["mean"],
-        "rmae_seg_sd": summary["sd"],
-        "rmae_seg_median": summary["median"],
-        "rmae_seg_iqr": summary["iqr"],
-        "n": int(t.size),
-        "n_segments": int(lengths.size),
-    }
+
+    values.update(_segment_fit(t, p, lengths, notes))
+    for key, value in values.items():
+        if not math.isfinite(value) and key not in notes:
+            values[key], notes[key] = math.nan, _overflow_reason(key)
+    values = {k: values[k] for k in METRICS}
+    values["n"] = int(t.size)
+    values["n_segments"] = int(lengths.size)
     return values, notes
+
+
+def _segment_fit(t: np.ndarray, p: np.ndarray, lengths: np.ndarray, notes: dict[str, str]) -> dict[str, float]:
+    """nrmse_seg_mean/median and fit_seg_mean/median/iqr over the segments whose output varies.
+
+    Segments with a constant output (or a single row) have no NRMSE; they are left out and
+    named in ``notes["seg_constant"]``; when none is left every value is nan with a note.
+    """
+    keys = ("nrmse_seg_mean", "nrmse_seg_median", "fit_seg_mean", "fit_seg_median", "fit_seg_iqr")
+    per = _segment_nrmse(t, p, lengths)
+    defined = ~np.isnan(per)
+    if not defined.any():
+        reason = (f"per-segment NRMSE and fit are undefined: the output is constant within each of the "
+                  f"{lengths.size} segment(s); report RMSE instead")
+        notes.update(dict.fromkeys(keys, reason))
+        return dict.fromkeys(keys, math.nan)
+    if not defined.all():
+        first = int(np.flatnonzero(~defined)[0])
+        notes["seg_constant"] = (f"{int((~defined).sum())} of {lengths.size} segments (first: segment {first}) have a "
+                                 "constant output and no NRMSE or fit; the per-segment summaries leave them out")
+    per = per[defined]
+    if not np.all(np.isfinite(per)):
+        return dict.fromkeys(keys, math.inf)  # noted as overflow by the caller
+    n = describe(per)
+    with np.errstate(over="ignore", invalid="ignore"):
+        f = describe(100.0 * (1.0 - per))
+    return {"nrmse_seg_mean": n["mean"], "nrmse_seg_median": n["median"],
+            "fit_seg_mean": f["mean"], "fit_seg_median": f["median"], "fit_seg_iqr": f["iqr"]}

@@ -221,8 +221,10 @@ def test_compute_metrics_undefined_become_nan_with_notes() -> None:
 
 def test_metric_registry_directions() -> None:
     lower = {k for k, v in METRICS.items() if v.lower_is_better}
-    assert lower == {"mae", "rmse", "mape", "rmae", "rmae_seg_sd", "rmae_seg_median", "rmae_seg_iqr"}
+    assert lower == {"mae", "rmse", "mape", "rmae", "rmae_seg_sd", "rmae_seg_median", "rmae_seg_iqr",
+                     "nrmse", "nrmse_seg_mean", "nrmse_seg_median", "fit_seg_iqr"}
     assert not METRICS["r2"].lower_is_better and not METRICS["ppmcc"].lower_is_better
+    assert not METRICS["fit"].lower_is_better and not METRICS["fit_seg_median"].lower_is_better
     assert all(v.description for v in METRICS.values())
 
 
