@@ -4,10 +4,17 @@ Every function here works on *repetition-level* values (one metric value per
 repetition, typically R = 30). The caller removes failed repetitions first; a
 non-finite value reaching this module is a bug upstream and is refused loudly
 rather than silently ignored.
+
+Identical repetitions (every value equal: the same training rows each time and a
+deterministic method) are copies, not evidence: they carry no interval (nan bounds) and
+a paired difference that never varies carries no test. Means and spreads are formed on
+values divided by a power of two near their largest magnitude, so values near 1e308
+neither overflow nor warn; a bound beyond the double range is nan.
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -18,6 +25,8 @@ from enginebench.errors import DataError
 __all__ = [
     "bootstrap_interval",
     "describe",
+    "holm",
+    "identical",
     "paired_ttest",
     "t_interval",
     "wilcoxon",
@@ -51,20 +60,50 @@ def _check_level(level: float) -> float:
     return level
 
 
+def _pow2(x: np.ndarray) -> float:
+    """A power of two near max|x| (1.0 for zeros): dividing by it is exact."""
+    m = float(np.max(np.abs(x)))
+    return math.ldexp(1.0, math.frexp(m)[1] - 1) if m > 0.0 else 1.0
+
+
+def _mean_sd(x: np.ndarray) -> tuple[float, float]:
+    """(mean, SD with ddof=1) computed on x / 2^k: no overflow; SD is nan for one value, inf beyond the range."""
+    s = _pow2(x)
+    y = x / s
+    with np.errstate(over="ignore"):
+        return float(y.mean()) * s, (float(y.std(ddof=1)) * s if x.size > 1 else float("nan"))
+
+
+def _bounds(mean: float, half: float) -> tuple[float, float]:
+    """(mean - half, mean + half), both nan when either leaves the double range."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        low, high = mean - half, mean + half
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return float("nan"), float("nan")
+    return low, high
+
+
+def identical(values: object) -> bool:
+    """True when there are at least two values and all are equal: copies, no spread to speak of."""
+    x = np.asarray(values, dtype=float)
+    return bool(x.size > 1 and np.all(x == x.flat[0]))
+
+
 def t_interval(values: object, level: float = 0.95) -> tuple[float, float, float]:
     """Student-t interval of the mean over R repetitions: mean +- t_{(1+level)/2, R-1} s / sqrt(R).
 
-    `s` is the sample standard deviation (ddof=1). With a single repetition no
-    interval exists and `(mean, nan, nan)` is returned.
+    `s` is the sample standard deviation (ddof=1). With a single repetition, or R
+    identical values (copies), no interval exists and `(mean, nan, nan)` is returned.
     """
     x = _finite_1d(values, "values")
     level = _check_level(level)
-    mean = float(x.mean())
+    mean, sd = _mean_sd(x)
     r = x.size
-    if r == 1:
+    if r == 1 or identical(x):
         return mean, float("nan"), float("nan")
-    half = float(scipy.stats.t.ppf(0.5 * (1.0 + level), r - 1)) * float(x.std(ddof=1)) / np.sqrt(r)
-    return mean, mean - half, mean + half
+    with np.errstate(over="ignore"):
+        half = float(scipy.stats.t.ppf(0.5 * (1.0 + level), r - 1)) * sd / np.sqrt(r)
+    return (mean, *_bounds(mean, half))
 
 
 def bootstrap_interval(
@@ -77,8 +116,9 @@ def bootstrap_interval(
 
     All resamples come from one `(n_resamples, R)` integer draw of `rng`, so the
     result is a deterministic function of the generator state. With a single
-    repetition every resample is identical and `(mean, nan, nan)` is returned,
-    matching `t_interval`.
+    repetition, or identical values, every resample is identical and `(mean, nan,
+    nan)` is returned (no draw is made), matching `t_interval`. The interval of
+    values within a metric's bounds lies within them.
     """
     x = _finite_1d(values, "values")
     level = _check_level(level)
@@ -89,28 +129,35 @@ def bootstrap_interval(
         )
     if int(n_resamples) != n_resamples or n_resamples < 1:
         raise DataError(f"n_resamples must be a positive integer, got n_resamples={n_resamples}")
-    mean = float(x.mean())
-    if x.size == 1:
+    mean, _ = _mean_sd(x)
+    if x.size == 1 or identical(x):
         return mean, float("nan"), float("nan")
+    s = _pow2(x)
     idx = rng.integers(0, x.size, size=(int(n_resamples), x.size))
-    means = x[idx].mean(axis=1)
+    means = (x / s)[idx].mean(axis=1)
     alpha = 1.0 - level
-    low, high = np.percentile(means, [50.0 * alpha, 100.0 * (1.0 - 0.5 * alpha)])
+    low, high = np.percentile(means, [50.0 * alpha, 100.0 * (1.0 - 0.5 * alpha)]) * s
     return mean, float(low), float(high)
 
 
 def describe(values: object) -> dict[str, float]:
     """Mean, SD (ddof=1), median, IQR (q75 - q25, linear percentiles) and n of finite values.
 
-    The SD of a single value is undefined and reported as nan.
+    The SD of a single value is undefined and reported as nan; an SD or IQR beyond the
+    double range (values spanning -1e308 to 1e308) is nan too, never inf.
     """
     x = _finite_1d(values, "values")
-    q25, q50, q75 = np.percentile(x, [25.0, 50.0, 75.0])
+    mean, sd = _mean_sd(x)
+    s = _pow2(x)
+    q25, q50, q75 = np.percentile(x / s, [25.0, 50.0, 75.0])
+    with np.errstate(over="ignore"):
+        iqr = float(q75 - q25) * s
+    finite = lambda v: v if math.isfinite(v) else float("nan")  # noqa: E731
     return {
-        "mean": float(x.mean()),
-        "sd": float(x.std(ddof=1)) if x.size > 1 else float("nan"),
-        "median": float(q50),
-        "iqr": float(q75 - q25),
+        "mean": mean,
+        "sd": finite(sd),
+        "median": float(q50) * s,
+        "iqr": finite(iqr),
         "n": int(x.size),
     }
 
@@ -133,14 +180,35 @@ def paired_ttest(a: object, b: object) -> tuple[float, float]:
     """Two-sided paired t-test of mean(a - b) == 0 (scipy.stats.ttest_rel): `(statistic, pvalue)`.
 
     Identical samples (all differences zero) give `(nan, 1.0)`: no evidence of a
-    difference. A constant non-zero difference gives `(+-inf, 0.0)`.
+    difference. A constant non-zero difference (copies of one repetition on each side)
+    has no variance to test against: `(nan, nan)`, never p = 0.
     """
     x, y = _paired(a, b)
-    d = x - y
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = x - y
     if np.all(d == d[0]):
-        return (float("nan"), 1.0) if d[0] == 0.0 else (float(np.copysign(np.inf, d[0])), 0.0)
-    res = scipy.stats.ttest_rel(x, y)
+        return (float("nan"), 1.0) if d[0] == 0.0 else (float("nan"), float("nan"))
+    s = max(_pow2(x), _pow2(y))  # the t statistic is scale-free: test the scaled values
+    res = scipy.stats.ttest_rel(x / s, y / s)
     return float(res.statistic), float(res.pvalue)
+
+
+def holm(pvalues: object) -> np.ndarray:
+    """Holm's step-down adjustment of a family of p-values (nan entries are not tests and stay nan).
+
+    The k-th smallest of m p-values becomes max over j <= k of min(1, (m - j + 1) p_(j)): it
+    controls the family-wise error rate at the nominal level, for any dependence.
+    """
+    p = np.asarray(pvalues, dtype=float).ravel()
+    out = np.full(p.shape, np.nan)
+    tested = np.flatnonzero(~np.isnan(p))
+    if tested.size == 0:
+        return out
+    order = tested[np.argsort(p[tested], kind="stable")]
+    m = order.size
+    adjusted = np.minimum(1.0, np.maximum.accumulate((m - np.arange(m)) * p[order]))
+    out[order] = adjusted
+    return out
 
 
 def wilcoxon(a: object, b: object) -> tuple[float, float]:
@@ -153,6 +221,8 @@ def wilcoxon(a: object, b: object) -> tuple[float, float]:
     x, y = _paired(a, b)
     if np.all(x == y):
         return float("nan"), 1.0
+    s = max(_pow2(x), _pow2(y))  # ranks of the differences are scale-free: no overflow in x - y
+    x, y = x / s, y / s
     with warnings.catch_warnings():
         # scipy warns when it falls back from the exact distribution (ties/zeros);
         # the fallback is the documented behaviour, not something the user can act on.

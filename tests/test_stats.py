@@ -12,6 +12,8 @@ from enginebench.errors import DataError
 from enginebench.results.stats import (
     bootstrap_interval,
     describe,
+    holm,
+    identical,
     paired_ttest,
     t_interval,
     wilcoxon,
@@ -104,7 +106,9 @@ def test_paired_ttest_against_scipy() -> None:
 def test_paired_ttest_degenerate() -> None:
     stat, p = paired_ttest([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
     assert math.isnan(stat) and p == 1.0
-    assert paired_ttest([2.0, 3.0, 4.0], [1.0, 2.0, 3.0]) == (math.inf, 0.0)
+    # a constant non-zero difference (copies on each side) has no variance: no test, never p = 0
+    stat, p = paired_ttest([2.0, 3.0, 4.0], [1.0, 2.0, 3.0])
+    assert math.isnan(stat) and math.isnan(p)
 
 
 def test_paired_length_mismatch_message() -> None:
@@ -132,3 +136,52 @@ def test_wilcoxon_against_scipy_and_hand() -> None:
 def test_wilcoxon_all_zero_differences() -> None:
     stat, p = wilcoxon([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
     assert math.isnan(stat) and p == 1.0
+
+
+# ---------------------------------------------------------------- identical repetitions
+
+def test_identical_repetitions_carry_no_interval() -> None:
+    assert identical([0.1719, 0.1719]) and not identical([0.1719]) and not identical([1.0, 1.0 + 1e-15])
+    mean, low, high = t_interval([0.1719] * 5)
+    assert mean == 0.1719 and math.isnan(low) and math.isnan(high)
+    mean, low, high = bootstrap_interval([0.1719] * 5, np.random.default_rng(0))
+    assert mean == 0.1719 and math.isnan(low) and math.isnan(high)
+
+
+# ---------------------------------------------------------------- Holm
+
+def test_holm_hand_and_step_down() -> None:
+    # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1 = 0.02, 0.03, 0.06, 0.04 -> running max 0.06
+    np.testing.assert_allclose(holm([0.01, 0.04, 0.03, 0.005]), [0.03, 0.06, 0.06, 0.02])
+    np.testing.assert_allclose(holm([0.5, 0.9]), [1.0, 1.0])  # capped at 1
+    out = holm([0.01, float("nan"), 0.02])  # nan is no test: the family has 2 members
+    assert math.isnan(out[1]) and out[0] == pytest.approx(0.02) and out[2] == pytest.approx(0.02)
+    assert holm([]).size == 0
+
+
+def test_holm_against_its_definition() -> None:
+    p = np.random.default_rng(4).uniform(0, 0.2, 12)
+    m, ranked = p.size, np.sort(p)
+    ref = [min(1.0, max((m - j) * ranked[j] for j in range(k + 1))) for k in range(m)]
+    np.testing.assert_allclose(np.sort(holm(p)), ref, rtol=1e-15)
+    assert (holm(p) >= p).all()
+
+
+# ---------------------------------------------------------------- magnitudes near the double range
+
+@pytest.mark.filterwarnings("error")
+def test_statistics_of_huge_values_scale_exactly() -> None:
+    x = np.random.default_rng(2).normal(3.0, 1.0, 10)
+    k = 2.0**1015  # values up to ~1.8e306: plain sums of squares overflow
+    mean, low, high = t_interval(x * k)
+    ref = t_interval(x)
+    assert (mean, low, high) == pytest.approx(tuple(v * k for v in ref), rel=1e-14)
+    d, dk = describe(x), describe(x * k)
+    assert all(dk[key] == pytest.approx(d[key] * k, rel=1e-14) for key in ("mean", "sd", "median", "iqr"))
+    b = bootstrap_interval(x * k, np.random.default_rng(1), n_resamples=200)
+    assert b == pytest.approx(tuple(v * k for v in bootstrap_interval(x, np.random.default_rng(1), n_resamples=200)))
+    assert paired_ttest(x * k, x[::-1] * k) == pytest.approx(paired_ttest(x, x[::-1]), rel=1e-12)
+    # a spread beyond the double range: no interval and no SD rather than inf
+    mean, low, high = t_interval([1.7e308, -1.7e308, 1.7e308])
+    assert math.isfinite(mean) and math.isnan(low) and math.isnan(high)
+    assert math.isnan(describe([1.7e308, -1.7e308])["sd"])
