@@ -20,8 +20,12 @@ from sklearn.metrics import (
 from enginebench.errors import DataError
 from enginebench.results.metrics import (
     METRICS,
+    bounds,
     compute_metrics,
+    fit,
     mae,
+    mean_abs,
+    nrmse,
     mape,
     ppmcc,
     r2,
@@ -226,6 +230,116 @@ def test_metric_registry_directions() -> None:
     assert not METRICS["r2"].lower_is_better and not METRICS["ppmcc"].lower_is_better
     assert not METRICS["fit"].lower_is_better and not METRICS["fit_seg_median"].lower_is_better
     assert all(v.description for v in METRICS.values())
+
+
+# ---------------------------------------------------------------- identification metrics
+
+def test_nrmse_and_fit_by_their_definitions(data: tuple[np.ndarray, np.ndarray]) -> None:
+    y, p = data
+    assert nrmse(y, p) == pytest.approx(math.sqrt(mean_squared_error(y, p)) / np.std(y), rel=1e-12)
+    assert fit(y, p) == pytest.approx(100 * (1 - np.linalg.norm(y - p) / np.linalg.norm(y - y.mean())), rel=1e-12)
+    # hand: y = 1, 2, 3 (SD sqrt(2/3)), errors 1, 0, 2 (RMSE sqrt(5/3)): NRMSE sqrt(5/2), fit 100 (1 - sqrt(5/2))
+    assert nrmse([1.0, 2.0, 3.0], [2.0, 2.0, 5.0]) == pytest.approx(math.sqrt(2.5))
+    assert fit([1.0, 2.0, 3.0], [2.0, 2.0, 5.0]) == pytest.approx(100 * (1 - math.sqrt(2.5)))
+    assert fit(y, np.full_like(y, y.mean())) == pytest.approx(0.0, abs=1e-9) and fit(y, y) == 100.0
+    with pytest.raises(DataError, match=r"^NRMSE is undefined: target constant \(all 3 values equal 2.0\)"):
+        nrmse([2.0, 2.0, 2.0], [1.0, 2.0, 3.0])
+    with pytest.raises(DataError, match=r"^fit is undefined: target constant"):
+        fit([2.0, 2.0], [1.0, 2.0])
+
+
+def test_compute_metrics_identification_values_per_segment_and_pooled(data: tuple[np.ndarray, np.ndarray]) -> None:
+    y, p = data
+    segs_t, segs_p = [y[:20], y[20:150], y[150:]], [p[:20], p[20:150], p[150:]]
+    values, notes = compute_metrics(segs_t, segs_p, 380.0)
+    assert notes == {}
+    assert values["nrmse"] == pytest.approx(nrmse(y, p), rel=1e-12)  # pooled over all evaluated rows
+    assert values["fit"] == pytest.approx(fit(y, p), rel=1e-12)
+    per = np.array([math.sqrt(mean_squared_error(t, q)) / np.std(t) for t, q in zip(segs_t, segs_p)])
+    assert values["nrmse_seg_mean"] == pytest.approx(per.mean(), rel=1e-12)
+    assert values["nrmse_seg_median"] == pytest.approx(np.median(per), rel=1e-12)
+    fits = 100 * (1 - per)
+    assert values["fit_seg_mean"] == pytest.approx(fits.mean(), rel=1e-12)
+    assert values["fit_seg_median"] == pytest.approx(np.median(fits), rel=1e-12)
+    q75, q25 = np.percentile(fits, [75, 25])
+    assert values["fit_seg_iqr"] == pytest.approx(q75 - q25, rel=1e-9)
+
+
+def test_constant_outputs_make_nrmse_and_fit_nan_with_a_reason() -> None:
+    values, notes = compute_metrics([np.full(4, 5.0)], [np.array([4.0, 5.0, 6.0, 5.0])], 5.0)
+    for key, name in (("nrmse", "NRMSE"), ("fit", "fit"), ("r2", "R^2")):
+        assert math.isnan(values[key])
+        assert notes[key] == f"{name} is undefined: target constant (all 4 values equal 5.0); report MAE or RMSE instead"
+    assert values["rmse"] == pytest.approx(math.sqrt(0.5))
+    for key in ("nrmse_seg_mean", "fit_seg_median", "fit_seg_iqr"):
+        assert math.isnan(values[key]) and notes[key].startswith("per-segment NRMSE and fit are undefined")
+    # one constant segment of two: the per-segment summaries use the other and say so
+    values, notes = compute_metrics([np.full(3, 2.0), np.array([1.0, 2.0, 3.0])],
+                                    [np.array([1.0, 2.0, 3.0]), np.array([1.0, 2.0, 4.0])], 2.0)
+    assert values["nrmse_seg_mean"] == pytest.approx(math.sqrt(1 / 3) / math.sqrt(2 / 3))
+    assert values["fit_seg_iqr"] == 0.0 and math.isfinite(values["fit"])
+    assert notes["seg_constant"] == ("1 of 2 segments (first: segment 0) have a constant output and no NRMSE or fit; "
+                                     "the per-segment summaries leave them out")
+
+
+def test_metric_bounds_are_declared() -> None:
+    assert bounds("mae") == (0.0, math.inf) and bounds("nrmse") == (0.0, math.inf) and bounds("rmae") == (0.0, math.inf)
+    assert bounds("ppmcc") == (-1.0, 1.0) and bounds("fit") == (-math.inf, 100.0) and bounds("r2") == (-math.inf, 1.0)
+    assert bounds("skill_mae") == (-math.inf, 1.0) and bounds("time_fit_s") == (-math.inf, math.inf)
+
+
+# ---------------------------------------------------------------- huge and tiny magnitudes
+
+def _exact_pearson(t: np.ndarray, p: np.ndarray) -> float:
+    """Pearson's r in exact rational arithmetic on the given doubles (one rounding, in the final root)."""
+    from decimal import Decimal, getcontext
+    from fractions import Fraction
+
+    getcontext().prec = 40
+    t_, p_ = [Fraction(float(a)) for a in t], [Fraction(float(b)) for b in p]
+    mt, mp = sum(t_) / len(t_), sum(p_) / len(p_)
+    sxy = sum((a - mt) * (b - mp) for a, b in zip(t_, p_))
+    r2_ = sxy * sxy / (sum((a - mt) ** 2 for a in t_) * sum((b - mp) ** 2 for b in p_))
+    return math.copysign(float((Decimal(r2_.numerator) / Decimal(r2_.denominator)).sqrt()), sxy)
+
+
+def test_ppmcc_keeps_its_digits_under_a_large_offset() -> None:
+    # offset 1e9, spread 1e-3: scaling before centring lost 1e-6 here (8.9e-5 in the issue)
+    rng = np.random.default_rng(0)
+    y = 1e9 + 1e-3 * rng.standard_normal(200)
+    p = y + 5e-4 * rng.standard_normal(200)
+    assert abs(ppmcc(y, p) - _exact_pearson(y, p)) < 1e-12
+    # tiny spreads still do not underflow (b86baa1), huge ones do not overflow
+    small = np.array([1.0, 2.0, 4.0, 3.0]) * 1e-276
+    assert ppmcc(small, small[::-1]) == pytest.approx(_exact_pearson(small, small[::-1]), abs=1e-14)
+    huge = np.array([1.0, 2.0, 4.0, 3.0]) * 4e307
+    assert ppmcc(huge, small[::-1]) == pytest.approx(_exact_pearson(small, small[::-1]), abs=1e-14)
+
+
+@pytest.mark.filterwarnings("error")  # no numpy RuntimeWarning may reach the user
+def test_values_near_the_double_range_scale_exactly_or_are_nan_with_a_reason(data) -> None:
+    y, p = data
+    segs = lambda a: [a[:50], a[50:]]  # noqa: E731
+    ref, _ = compute_metrics(segs(y), segs(p), mean_abs(y))
+    big, notes = compute_metrics(segs(y * 2.0**1000), segs(p * 2.0**1000), mean_abs(y * 2.0**1000))
+    assert notes == {}
+    for key in ("mae", "rmse"):
+        assert big[key] == pytest.approx(ref[key] * 2.0**1000, rel=1e-13)
+    for key in ("nrmse", "fit", "r2", "ppmcc", "mape", "rmae", "rmae_seg_sd", "nrmse_seg_mean", "fit_seg_iqr"):
+        assert big[key] == pytest.approx(ref[key], rel=1e-12), key
+    # errors beyond the double range: nan with a reason, never inf; the scale-free metrics survive
+    t = np.array([1e308, -1e308, 1e308, -1e308])
+    values, notes = compute_metrics([t], [-t], 1.0)
+    assert all(math.isnan(v) or math.isfinite(v) for v in values.values())
+    assert {k for k, v in values.items() if isinstance(v, float) and math.isnan(v)} == set(notes)
+    assert notes["rmse"] == ("rmse is undefined: its value overflows double precision (the data reach about 1e308); "
+                             "rescale the target, e.g. change its unit")
+    assert math.isnan(values["mae"]) and values["nrmse"] == pytest.approx(2.0) and values["ppmcc"] == pytest.approx(-1.0)
+    assert values["mape"] == pytest.approx(200.0) and values["fit"] == pytest.approx(-100.0)
+    # a training mean |y| that overflowed (jobs should use mean_abs, which does not): RMAE is nan with a note
+    values, notes = compute_metrics([t / 4], [t / 8], math.inf)
+    assert math.isnan(values["rmae"]) and notes["rmae"].startswith("RMAE is undefined: mean |y| of the training data")
+    assert mean_abs([1.5e308, -1.7e308]) == pytest.approx(1.6e308)
 
 
 # ---------------------------------------------------------------- properties
