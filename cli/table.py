@@ -11,7 +11,8 @@ from enginebench.cli.options import emit, store_option
 @click.command()
 @click.argument("run_ref", metavar="RUN", default="latest")
 @click.option("--format", "fmt", type=click.Choice(["term", "md", "latex", "csv", "html"]), default="term", show_default=True)
-@click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True, help="Comma-separated metric columns (wide formats).")
+@click.option("--metrics", default=None, help="Comma-separated metric columns (wide formats) "
+              "[default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")
 @click.option("--paired", "paired_metric", default="mae", show_default=True,
               help="Metric for the paired tests printed under term/md tables ('' to skip).")
@@ -31,7 +32,7 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     summary = tables.summarize(raw, interval=interval)
-    cols = [m.strip() for m in metrics.split(",") if m.strip()]
+    cols = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
     if fmt == "term" and output is None:
         Console().print(tables.to_rich(summary, cols, title=run.id))
         if paired_metric:
@@ -49,14 +50,10 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
 
 
 def paired_lines(tests, metric: str) -> str:
-    """Plain sentences for the paired tests of each method against its block's best."""
-    if tests.empty:
-        return ""
-    lines = [f"Paired tests on {metric} against the best method of each block (over repetitions):"]
-    for r in tests.itertuples():
-        lines.append(f"  {r.target}, {r.mode}, window {r.window:g} s, {r.split}: {r.method} - {r.versus} = {r.mean_difference:+.4g}"
-                     f"  (paired t p = {r.t_pvalue:.2g}, Wilcoxon p = {r.wilcoxon_pvalue:.2g}, n = {r.n_pairs})")
-    return "\n".join(lines) + "\n"
+    """Plain sentences for the paired tests of each method against its block's best (raw and Holm p-values)."""
+    from enginebench.results.tables import paired_text
+
+    return paired_text(tests, metric)
 
 
 @click.group()

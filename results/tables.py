@@ -4,66 +4,129 @@
 window, method, split, metric) with the mean, its interval over repetitions, and the
 spread (sd, median, iqr) over repetitions. Skill against the naive baseline is added
 per repetition (paired) where the baseline ran.
+
+Tables never mislead: failed repetitions and diverged segments are counted in every
+format; identical repetitions (copies) carry no interval (marked ‡); a Student-t
+interval that crosses the metric's bound (MAE < 0, PPMCC > 1) is replaced by the
+bootstrap percentile interval, which cannot cross it (marked †); the notes under a
+table say what each mark and column means. Paired p-values come with their Holm
+adjustment over the comparisons listed.
 """
 
 from __future__ import annotations
 
 import html
+import math
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
 from enginebench.errors import DataError
-from enginebench.results.metrics import METRICS
-from enginebench.results.stats import bootstrap_interval, t_interval
+from enginebench.results.metrics import METRICS, bounds
+from enginebench.results.stats import bootstrap_interval, describe, holm, identical, paired_pvalues, t_interval
 
 KEYS = ["dataset", "target", "mode", "window", "method", "split"]
-SUMMARY_COLUMNS = KEYS + ["metric", "mean", "ci_low", "ci_high", "sd", "median", "iqr", "n_repeats", "n_failed", "interval"]
+SUMMARY_COLUMNS = KEYS + ["metric", "mean", "ci_low", "ci_high", "sd", "median", "iqr", "n_repeats", "n_failed",
+                          "interval", "n_diverged", "n_segments", "note"]
 DEFAULT_METRICS = ("mae", "mape", "ppmcc", "rmae")
+SIMULATION_METRICS = ("rmse", "nrmse", "fit", "rmae")
 BASELINE = "naive-mean"
 SKILL_OF = ("mae", "rmae")
 FORMATS = ("term", "md", "latex", "csv", "html")
+CROSSED = "†"
+IDENTICAL = "‡"
+IDENTICAL_NOTE = "identical repetitions: every repetition gave the same value, so there is no interval"
+CROSSED_NOTE = "interval crosses the metric's bound"
+
+
+def default_metrics(summary: pd.DataFrame) -> tuple[str, ...]:
+    """The wide table's columns for the modes in `summary`: simulation runs show rmse, nrmse, fit and rmae."""
+    modes = set(summary["mode"]) if len(summary) else set()
+    if modes == {"simulation"}:
+        return SIMULATION_METRICS
+    if "simulation" in modes:
+        return DEFAULT_METRICS + tuple(m for m in SIMULATION_METRICS if m not in DEFAULT_METRICS)
+    return DEFAULT_METRICS
 
 
 def with_skill(ok: pd.DataFrame) -> pd.DataFrame:
-    """Add skill_<m> = 1 - m / m_baseline rows, paired on repetition."""
+    """Add skill_<m> = 1 - m / m_baseline rows, paired on repetition (undefined where the baseline's error is 0)."""
     base = ok[(ok["method"] == BASELINE) & ok["metric"].isin(SKILL_OF)]
     if base.empty:
         return ok
     keys = ["dataset", "target", "mode", "window", "split", "repetition", "metric"]
     merged = ok[ok["metric"].isin(SKILL_OF)].merge(base[keys + ["value"]], on=keys, suffixes=("", "_base"))
-    merged["value"] = 1.0 - merged["value"] / merged["value_base"]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        merged["value"] = 1.0 - merged["value"] / merged["value_base"]
+    merged = merged[np.isfinite(merged["value"].to_numpy(dtype=float))]
     merged["metric"] = "skill_" + merged["metric"]
     return pd.concat([ok, merged.drop(columns="value_base")], ignore_index=True)
 
 
+def _bound_text(metric: str) -> str:
+    low, high = bounds(metric)
+    if math.isfinite(low) and math.isfinite(high):
+        return f"{metric} lies in [{low:g}, {high:g}]"
+    return f"{metric} >= {low:g}" if math.isfinite(low) else f"{metric} <= {high:g}"
+
+
+def _segment_counts(metrics: pd.DataFrame) -> pd.DataFrame:
+    """n_diverged and n_segments per KEYS: diverged and evaluated segments, summed over the successful repetitions."""
+    rows = metrics[(metrics["status"] == "ok") & metrics["metric"].isin(["diverged", "n_segments"])]
+    if rows.empty:
+        return pd.DataFrame(columns=KEYS + ["n_diverged", "n_segments"])
+    out = rows.pivot_table(index=KEYS, columns="metric", values="value", aggfunc="sum", sort=False)
+    out = out.reindex(columns=["diverged", "n_segments"]).fillna(0).astype(int)
+    return out.rename(columns={"diverged": "n_diverged"}).reset_index()
+
+
 def summarize(metrics: pd.DataFrame, interval: str = "t", level: float = 0.95, seed: int = 0) -> pd.DataFrame:
-    """One row per (keys, metric): mean, interval, sd, median, iqr over repetitions."""
+    """One row per (keys, metric): mean, interval, sd, median, iqr over repetitions, with counts and a note.
+
+    Non-finite stored values (nan for an undefined metric, inf written by older versions
+    on overflow) are left out like undefined ones. ``note`` says when the values are
+    identical (no interval) or when the Student-t interval crossed the metric's bound:
+    then ``ci_low``/``ci_high`` hold the bootstrap percentile interval, ``interval``
+    says "bootstrap" and the note keeps the t interval.
+    """
     if metrics.empty:
         raise DataError("no metric rows to summarise")
     failed = (metrics[metrics["status"] != "ok"]
               .drop_duplicates(KEYS[:-1] + ["repetition"])
               .groupby(KEYS[:-1]).size().rename("n_failed"))
     ok = metrics[(metrics["status"] == "ok") & (metrics["split"] != "-") & ~metrics["metric"].isin(["n", "n_segments"])]
-    ok = with_skill(ok.dropna(subset=["value"]))
+    ok = with_skill(ok[np.isfinite(ok["value"].to_numpy(dtype=float))])
     rng = np.random.default_rng(seed)
+    fallback = np.random.default_rng([seed, 1])  # bootstrap in place of a bound-crossing t interval
     rows = []
     for key, group in ok.groupby(KEYS + ["metric"], sort=False):
         v = group["value"].to_numpy(dtype=float)
+        kind, note = interval, ""
         if interval == "bootstrap":
             mean, low, high = bootstrap_interval(v, rng, level=level)
         else:
             mean, low, high = t_interval(v, level=level)
-        q25, q50, q75 = np.percentile(v, [25, 50, 75])
-        rows.append((*key, mean, low, high, float(np.std(v, ddof=1)) if len(v) > 1 else float("nan"),
-                     q50, q75 - q25, len(v), 0, interval))
+        lo, hi = bounds(key[-1])
+        if identical(v):
+            note = f"{IDENTICAL_NOTE} (n = {len(v)})"
+        elif np.isfinite(low) and (low < lo or high > hi):
+            note = (f"{CROSSED_NOTE} ({_bound_text(key[-1])}): the Student-t interval [{low:.4g}, {high:.4g}] is "
+                    "replaced by the bootstrap percentile interval")
+            _, low, high = bootstrap_interval(v, fallback, level=level)
+            kind = "bootstrap"
+        d = describe(v)
+        rows.append((*key, mean, low, high, d["sd"], d["median"], d["iqr"], len(v), 0, kind, 0, 0, note))
     out = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
     if not failed.empty:
         out = pd.concat([out, _all_failed_rows(out, failed, interval)], ignore_index=True)
         out = out.drop(columns="n_failed").merge(failed.reset_index(), on=KEYS[:-1], how="left")
         out["n_failed"] = out["n_failed"].fillna(0).astype(int)
-        out = out[SUMMARY_COLUMNS]
+    counts = _segment_counts(metrics)
+    if len(counts) and len(out):
+        out = out.drop(columns=["n_diverged", "n_segments"]).merge(counts, on=KEYS, how="left")
+        out[["n_diverged", "n_segments"]] = out[["n_diverged", "n_segments"]].fillna(0).astype(int)
+    out = out[SUMMARY_COLUMNS]
     return out.sort_values(["target", "window", "split", "method", "metric"], kind="stable").reset_index(drop=True)
 
 
@@ -82,7 +145,7 @@ def _all_failed_rows(out: pd.DataFrame, failed: pd.Series, interval: str) -> pd.
         others = out[(out[block] == pd.Series(dict(zip(block, key[:4])))).all(axis=1)] if len(out) else out
         cells = others[["split", "metric"]].drop_duplicates().itertuples(index=False) if len(others) else [("test", "mae")]
         for split, metric in cells:
-            rows.append((*key, split, metric, *[float("nan")] * 6, 0, 0, interval))
+            rows.append((*key, split, metric, *[float("nan")] * 6, 0, 0, interval, 0, 0, ""))
     return pd.DataFrame(rows, columns=SUMMARY_COLUMNS).astype(out.dtypes.to_dict()) if rows else out.iloc[:0]
 
 
@@ -94,20 +157,35 @@ def _fmt(x: float, digits: int = 4) -> str:
     return f"{x:.{digits}g}"
 
 
-def wide(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> tuple[pd.DataFrame, pd.DataFrame]:
+def _cell(mean: float, low: float, high: float, note: str) -> str:
+    """``mean ± half-width``; ``mean [low, high] †`` for a bound-crossing row; ``mean ‡`` for copies."""
+    if not np.isfinite(mean):
+        return "n/a"
+    if note.startswith(IDENTICAL_NOTE):
+        return f"{_fmt(mean)} {IDENTICAL}"
+    if note.startswith(CROSSED_NOTE):
+        return f"{_fmt(mean)} [{_fmt(low, 3)}, {_fmt(high, 3)}] {CROSSED}"
+    if not (np.isfinite(low) and np.isfinite(high)):
+        return _fmt(mean)
+    return f"{_fmt(mean)} ± {_fmt((high - low) / 2, 2)}"
+
+
+def wide(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(cells, bold): rows = target x window x split x method, one column per metric.
 
-    Cells read ``mean ± half-width``; ``bold`` marks the best mean of each column within
-    its (target, mode, window, split) block.
+    Cells read ``mean ± half-width`` (see ``_cell`` for the marked forms); ``bold`` marks
+    the best mean of each column within its (target, mode, window, split) block. Columns
+    ``failed`` (failed repetitions) and ``diverged`` (diverged / evaluated segments over the
+    successful repetitions) appear whenever one of their counts is non-zero. `metrics`
+    None: ``default_metrics(summary)``.
     """
+    metrics = default_metrics(summary) if metrics is None else tuple(metrics)
     present = [m for m in metrics if m in set(summary["metric"])]
     if not present:
         raise DataError(f"none of the metrics {', '.join(metrics)} is in this run")
     s = summary[summary["metric"].isin(present)].copy()
-    s["cell"] = [
-        _fmt(m) + ("" if not np.isfinite(h) else f" ± {_fmt(h, 2)}")
-        for m, h in zip(s["mean"], (s["ci_high"] - s["ci_low"]) / 2)
-    ]
+    notes = s["note"] if "note" in s else pd.Series("", index=s.index)
+    s["cell"] = [_cell(m, lo, hi, str(n)) for m, lo, hi, n in zip(s["mean"], s["ci_low"], s["ci_high"], notes.fillna(""))]
     index = ["target", "mode", "window", "split", "method"]
     cells = s.pivot_table(index=index, columns="metric", values="cell", aggfunc="first", sort=False)[present]
     means = (s.pivot_table(index=index, columns="metric", values="mean", aggfunc="first", sort=False)
@@ -121,12 +199,18 @@ def wide(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> tup
             lower = METRICS[m].lower_is_better if m in METRICS else not m.startswith("skill")
             best = col.idxmin() if lower else col.idxmax()
             bold.loc[best, m] = True
-    n = s.pivot_table(index=index, values=["n_repeats", "n_failed"], aggfunc="max", sort=False).reindex(cells.index)
+    count_cols = [c for c in ("n_repeats", "n_failed", "n_diverged", "n_segments") if c in s]
+    n = s.pivot_table(index=index, values=count_cols, aggfunc="max", sort=False).reindex(cells.index)
     cells.insert(0, "n", n["n_repeats"].astype(int).astype(str))
     bold.insert(0, "n", False)
+    at = 1
     if (n["n_failed"] > 0).any():  # failed repetitions are excluded from the statistics: say how many
-        cells.insert(1, "failed", n["n_failed"].astype(int).astype(str))
-        bold.insert(1, "failed", False)
+        cells.insert(at, "failed", n["n_failed"].astype(int).astype(str))
+        bold.insert(at, "failed", False)
+        at += 1
+    if "n_diverged" in n and (n["n_diverged"] > 0).any():  # diverged segments are scored, but say how many
+        cells.insert(at, "diverged", [f"{int(d)}/{int(k)}" for d, k in zip(n["n_diverged"].fillna(0), n["n_segments"].fillna(0))])
+        bold.insert(at, "diverged", False)
     return cells.fillna("n/a"), bold
 
 
@@ -145,26 +229,53 @@ def _rows(cells: pd.DataFrame, bold: pd.DataFrame, mark) -> list[list[str]]:
 
 
 def interval_note(summary: pd.DataFrame) -> str:
-    kind = summary["interval"].iloc[0] if len(summary) else "t"
+    """The first note under a table: which interval the cells show."""
+    plain = summary[~summary["note"].fillna("").str.startswith(CROSSED_NOTE)] if "note" in summary else summary
+    kind = plain["interval"].iloc[0] if len(plain) else (summary["interval"].iloc[0] if len(summary) else "t")
     which = "Student-t" if kind == "t" else "bootstrap percentile"
     return f"mean ± half-width of the {which} 95% interval over repetitions (n); best per block in bold"
 
 
-def to_markdown(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> str:
+def table_notes(summary: pd.DataFrame, cells: pd.DataFrame) -> list[str]:
+    """The notes printed under a wide table: the interval, and what every mark and extra column shown means."""
+    text = cells.to_numpy().ravel().tolist()
+    notes = [interval_note(summary)]
+    if any(CROSSED in str(c) for c in text):
+        shown = [m for m in cells.columns if any(CROSSED in str(c) for c in cells[m])]
+        notes.append(f"{CROSSED} the Student-t interval crosses the metric's bound "
+                     f"({'; '.join(_bound_text(m) for m in shown)}): mean [bootstrap percentile 95% interval] shown "
+                     "instead; the csv's note keeps the t interval")
+    if any(IDENTICAL in str(c) for c in text):
+        notes.append(f"{IDENTICAL} identical repetitions: every repetition gave the same value (the same training rows "
+                     "each time, e.g. train_size at least the training pool, and a deterministic method): "
+                     "no interval and no paired test")
+    if "failed" in cells.columns:
+        notes.append("failed: repetitions that failed, left out of every statistic (their reasons: enginebench runs show RUN)")
+    if "diverged" in cells.columns:
+        notes.append("diverged: diverged segments / evaluated segments, summed over the successful repetitions "
+                     "(their predictions are scored as they are)")
+    if {"rmse", "nrmse", "fit"} & set(cells.columns):
+        notes.append("rmse in the target's unit; nrmse = rmse / standard deviation of the measured output "
+                     "(dimensionless); fit = 100 (1 - nrmse), in %")
+    return notes
+
+
+def to_markdown(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
     cells, bold = wide(summary, metrics)
     head = _header(cells)
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in _rows(cells, bold, lambda v: f"**{v}**")]
-    return "\n".join(lines) + f"\n\n{interval_note(summary)}\n"
+    return "\n".join(lines) + "\n\n" + "\n\n".join(table_notes(summary, cells)) + "\n"
 
 
 def _latex_escape(text: str) -> str:
-    for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"), ("±", r"$\pm$")):
+    for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"), ("±", r"$\pm$"),
+                 (CROSSED, r"\dag{}"), (IDENTICAL, r"\ddag{}")):
         text = text.replace(a, b)
     return text
 
 
-def to_latex(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> str:
+def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
     cells, bold = wide(summary, metrics)
     head = _header(cells)
     lines = [r"\begin{tabular}{" + "l" * len(cells.index.names) + "r" * len(cells.columns) + "}", r"\toprule",
@@ -172,11 +283,11 @@ def to_latex(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) ->
     for r in _rows(cells, bold, lambda v: "\x00" + v):
         lines.append(" & ".join(r"\textbf{" + _latex_escape(c[1:]) + "}" if c.startswith("\x00") else _latex_escape(c)
                                 for c in r) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}", f"% {interval_note(summary)}"]
+    lines += [r"\bottomrule", r"\end{tabular}"] + [f"% {n}" for n in table_notes(summary, cells)]
     return "\n".join(lines) + "\n"
 
 
-def to_html(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> str:
+def to_html(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
     cells, bold = wide(summary, metrics)
     head = "".join(f"<th>{html.escape(h)}</th>" for h in _header(cells))
     body = "\n".join(
@@ -184,8 +295,8 @@ def to_html(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS) -> 
                          for c in r) + "</tr>"
         for r in _rows(cells, bold, lambda v: "\x00" + v)
     )
-    return (f'<table class="enginebench">\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n'
-            f"<p>{html.escape(interval_note(summary))}</p>\n")
+    notes = "".join(f"<p>{html.escape(n)}</p>\n" for n in table_notes(summary, cells))
+    return f'<table class="enginebench">\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n' + notes
 
 
 def to_csv(summary: pd.DataFrame) -> str:
@@ -204,17 +315,18 @@ def _drop_constant_levels(cells: pd.DataFrame, bold: pd.DataFrame) -> tuple[pd.D
     return cells, bold, ", ".join(fixed)
 
 
-def to_rich(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS, title: str | None = None):
-    """A rich Table for the terminal; levels that never change go to the title."""
+def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: str | None = None):
+    """A rich Table for the terminal; levels that never change go to the title, the notes to the caption."""
     from rich.markup import escape
     from rich.table import Table
 
     cells, bold = wide(summary, metrics)
+    notes = table_notes(summary, cells)
     cells, bold, fixed = _drop_constant_levels(cells, bold)
-    cells = cells.rename(index=lambda v: escape(v) if isinstance(v, str) else v)
+    cells = cells.rename(index=lambda v: escape(v) if isinstance(v, str) else v).map(escape)
     bold = bold.rename(index=lambda v: escape(v) if isinstance(v, str) else v)
     title = " | ".join(t for t in (title, fixed) if t) or None
-    table = Table(title=title, caption=interval_note(summary))
+    table = Table(title=title, caption=escape("\n".join(notes)))
     for i, h in enumerate(_header(cells)):
         table.add_column(h, justify="left" if i < len(cells.index.names) else "right")
     for r in _rows(cells, bold, lambda v: f"[bold]{v}[/bold]"):
@@ -222,22 +334,30 @@ def to_rich(summary: pd.DataFrame, metrics: Sequence[str] = DEFAULT_METRICS, tit
     return table
 
 
+# -- paired tests -------------------------------------------------------------------
+
+PAIRED_COLUMNS = ["target", "mode", "window", "split", "method", "versus", "mean_difference", "t_pvalue",
+                  "wilcoxon_pvalue", "n_pairs", "t_pvalue_holm", "wilcoxon_pvalue_holm", "note"]
+
+
 def paired_tests(metrics: pd.DataFrame, metric: str = "mae") -> pd.DataFrame:
     """Each method against the best (lowest mean) of its block, paired on repetitions.
 
     Columns: target, mode, window, split, method, versus, mean_difference, t_pvalue,
-    wilcoxon_pvalue, n_pairs. A positive difference means ``method`` is worse than ``versus``.
+    wilcoxon_pvalue, n_pairs (raw p-values), t_pvalue_holm and wilcoxon_pvalue_holm (Holm
+    adjusted over every test of the frame: the family printed under a table), note (why a
+    pair has no test: identical repetitions, a difference that never varies). A positive
+    difference means ``method`` is worse than ``versus``.
     """
-    from enginebench.results.stats import paired_ttest, wilcoxon
-
-    ok = metrics[(metrics["status"] == "ok") & (metrics["metric"] == metric)].dropna(subset=["value"])
+    ok = metrics[(metrics["status"] == "ok") & (metrics["metric"] == metric)]
+    ok = ok[np.isfinite(ok["value"].to_numpy(dtype=float))]
     rows = []
     block_keys = ["target", "mode", "window", "split"]
     for key, block in ok.groupby(block_keys, sort=False):
         table = block.pivot_table(index="repetition", columns="method", values="value", aggfunc="first")
         if table.shape[1] < 2:
             continue
-        lower = METRICS[metric].lower_is_better if metric in METRICS else True
+        lower = METRICS[metric].lower_is_better if metric in METRICS else not metric.startswith("skill")
         best = table.mean().idxmin() if lower else table.mean().idxmax()
         for method in table.columns:
             if method == best:
@@ -245,8 +365,31 @@ def paired_tests(metrics: pd.DataFrame, metric: str = "mae") -> pd.DataFrame:
             pair = table[[method, best]].dropna()
             if len(pair) < 2:
                 continue
-            _, p_t = paired_ttest(pair[method], pair[best])
-            _, p_w = wilcoxon(pair[method], pair[best])
-            rows.append((*key, method, best, float((pair[method] - pair[best]).mean()), p_t, p_w, len(pair)))
-    return pd.DataFrame(rows, columns=block_keys + ["method", "versus", "mean_difference", "t_pvalue",
-                                                    "wilcoxon_pvalue", "n_pairs"])
+            p_t, p_w, note = paired_pvalues(pair[method], pair[best])
+            with np.errstate(over="ignore", invalid="ignore"):
+                diff = float((pair[method] - pair[best]).mean())
+            rows.append((*key, method, best, diff, p_t, p_w, len(pair), np.nan, np.nan, note))
+    out = pd.DataFrame(rows, columns=PAIRED_COLUMNS)
+    if len(out):
+        out["t_pvalue_holm"] = holm(out["t_pvalue"])
+        out["wilcoxon_pvalue_holm"] = holm(out["wilcoxon_pvalue"])
+    return out
+
+
+def paired_text(tests: pd.DataFrame, metric: str) -> str:
+    """Plain sentences for the paired tests of each method against its block's best, raw and Holm p-values."""
+    if tests.empty:
+        return ""
+    m = int(tests["t_pvalue"].notna().sum())
+    lines = [f"Paired tests on {metric} against the best method of each block (over repetitions); "
+             f"p = unadjusted p-value, Holm = adjusted for the {m} test(s) listed (Holm-Bonferroni):"]
+    for r in tests.itertuples():
+        where = f"  {r.target}, {r.mode}, window {float(r.window):g} s, {r.split}: {r.method} - {r.versus} = {r.mean_difference:+.4g}"
+        note = getattr(r, "note", "")
+        if isinstance(note, str) and note:
+            lines.append(f"{where}  ({note}; n = {r.n_pairs})")
+            continue
+        t_holm, w_holm = getattr(r, "t_pvalue_holm", np.nan), getattr(r, "wilcoxon_pvalue_holm", np.nan)
+        lines.append(f"{where}  (paired t p = {r.t_pvalue:.2g}, Holm {t_holm:.2g}; "
+                     f"Wilcoxon p = {r.wilcoxon_pvalue:.2g}, Holm {w_holm:.2g}; n = {r.n_pairs})")
+    return "\n".join(lines) + "\n"
