@@ -100,7 +100,11 @@ def intermediate_values(data: Samples, name: str) -> list[np.ndarray]:
 
 def target_samples(data: Samples, name: str, inputs: Sequence[str], values: Sequence[np.ndarray] | None,
                    y0: Sequence[np.ndarray] | None) -> Samples:
-    """Samples predicting the intermediate ``name`` from ``inputs`` (targets ``values`` when given)."""
+    """Samples predicting the intermediate ``name`` from ``inputs`` (targets ``values`` when given).
+
+    Their initialisation window is empty (the intermediate is not measured at run time), so a
+    simulating upstream starts from ``y0``, the estimate of the intermediate at the first row.
+    """
     cols = [data.input_names.index(c) for c in inputs]
     segs = []
     for k, s in enumerate(data.segments):
@@ -109,6 +113,8 @@ def target_samples(data: Samples, name: str, inputs: Sequence[str], values: Sequ
             s, U=u, X=np.ascontiguousarray(u[s.rows]), Z=None,
             y=None if values is None else values[k][s.rows][:, None],
             y0=None if y0 is None else np.atleast_1d(np.asarray(y0[k], dtype=np.float64)),
+            # the init window measured the target, not the intermediate: the upstream starts from y0 (estimated)
+            y_init=np.empty((0, 1)),
         ))
     return replace(data, segments=tuple(segs), input_names=tuple(inputs), feature_names=tuple(inputs),
                    target_names=(name,), internal_names=())

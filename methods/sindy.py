@@ -9,6 +9,27 @@ a fixed-step integrator (RK4 or Euler at the data's sample period, inputs held b
 samples). A trajectory that goes non-finite or leaves a bounded envelope around the
 training range is stopped, held at its last in-envelope value and flagged diverged
 (seed 003 reports SINDy blow-ups; they must be counted, never silently dropped).
+
+Thresholds relative to the data (the default, ``threshold_scale = "relative"``). The STLSQ
+threshold removes a term of the equation for d(x_k)/dt when its coefficient is smaller
+than ``threshold x rms(dx_k/dt)``, the root mean square of that state's fitted derivative
+over the training data. The library terms are built from standardised signals (unit
+standard deviation), so a relative threshold of 0.1 drops a term when a one-standard-
+deviation change of it moves the derivative by less than a tenth of its typical size,
+whatever the signal's units, the sample period (1 ms or 10 s) or ``time_scale``; an absolute
+threshold instead means "per ``time_scale`` second" and empties the model of a slow
+system (every coefficient of a system with time constants of minutes is below 0.01/s).
+Implemented exactly by dividing each state's derivative by its rms before STLSQ and
+multiplying the coefficients back (the ridge step is linear in the target). The default
+grid is 0.01 .. 0.5 relative; ``threshold_scale = "absolute"`` restores the seed's
+absolute thresholds (default grid 1e-2 .. 1e3, per ``time_scale`` second), which the
+turboshaft experiments pin. With relative thresholds ``time_scale`` is only the unit of
+the reported equations. A state whose every term is still removed is named in describe's
+``constant_states`` and ``warnings`` (the job's warnings).
+
+State initialisation: a segment with an initialisation window (``y_init``, N measured
+outputs) is simulated from its last sample, row N - 1, so the model starts from the most
+recent measured state; without one, from y0 at row 0.
 """
 
 from __future__ import annotations
@@ -35,6 +56,9 @@ seed's choice); ``kalman`` is the Kalman (RTS) smoother, quadratic regularisatio
 DEFAULT_DERIVATIVE_ALPHA = {"trend_filtered": 1e-3, "kalman": 1.0}
 INTEGRATORS = ("rk4", "euler")
 DEFAULT_PARAMS = {"degree": 2, "threshold": 0.1, "alpha": 0.05}
+THRESHOLD_SCALES = ("relative", "absolute")
+DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
+"""Default STLSQ threshold grids: relative to each derivative's rms, or seed 003's absolute range."""
 MIN_ROWS = 4
 """A training segment needs at least this many rows to be differentiated."""
 
@@ -65,6 +89,9 @@ class SINDyFit:
     derivative: str
     derivative_alpha: float
     notes: list[str] = field(default_factory=list)
+    threshold_scale: str = "absolute"
+    derivative_rms: np.ndarray | None = None
+    """Root mean square of each state's standardised derivative (the unit of relative thresholds)."""
 
     @property
     def n_states(self) -> int:
@@ -86,6 +113,7 @@ class _Prepared:
     lower: np.ndarray
     upper: np.ndarray
     notes: list[str]
+    derivative_rms: np.ndarray
 
 
 # --------------------------------------------------------------------------- numerics
@@ -257,6 +285,28 @@ def raw_coefficients(fit: SINDyFit) -> np.ndarray:
     return raw * (fit.state_std / fit.time_scale)[:, None]
 
 
+def initial_state(segment: Any) -> tuple[int, np.ndarray | None]:
+    """(row, measured output) a simulation of ``segment`` starts from: the init window's last sample, else y0.
+
+    A window whose last row is not before the segment's first evaluated row (an
+    inconsistent view) is ignored in favour of y0 at row 0.
+    """
+    y_init = getattr(segment, "y_init", None)
+    rows = np.asarray(segment.rows)
+    if y_init is not None and len(y_init) and (not rows.size or rows.min() >= len(y_init) - 1):
+        return len(y_init) - 1, np.asarray(y_init[-1], dtype=np.float64)
+    return 0, None if segment.y0 is None else np.asarray(segment.y0, dtype=np.float64)
+
+
+def constant_state_warnings(fitted: "SINDyFit") -> list[str]:
+    """One line per state whose every term was thresholded away (the job's warnings)."""
+    return [
+        f"every term of d({n})/dt was thresholded away (threshold {fitted.params['threshold']:g}, "
+        f"{fitted.threshold_scale}): {n} is simulated as its initial value held, a flat line; lower the threshold"
+        for n, row in zip(fitted.state_names, fitted.coef) if not np.any(row)
+    ]
+
+
 def _format_terms(coef_row: np.ndarray, names: Sequence[str], digits: int = 4) -> str:
     terms = [f"{c:+.{digits}g} {n}" if n != "1" else f"{c:+.{digits}g}" for c, n in zip(coef_row, names) if c != 0]
     return " ".join(terms) if terms else "0"
@@ -275,7 +325,8 @@ class SINDy(Method):
     def default_options(cls) -> dict[str, Any]:
         return {
             "degrees": (1, 2, 3),
-            "threshold_range": (1e-2, 1e3),
+            "threshold_scale": "relative",  # thresholds x rms of each state's derivative, or "absolute"
+            "threshold_range": None,  # None: (0.01, 0.5) relative, seed 003's (1e-2, 1e3) absolute
             "n_thresholds": 4,
             "alpha_range": (1e-4, 1e-1),
             "n_alphas": 3,
@@ -305,9 +356,18 @@ class SINDy(Method):
                 raise MethodError(f"sindy: option {key} must be a positive integer, got {o[key]!r}")
         if o["derivative_alpha"] is not None and not o["derivative_alpha"] > 0:
             raise MethodError(f"sindy: option derivative_alpha must be positive, got {o['derivative_alpha']!r}")
+        if o["threshold_scale"] not in THRESHOLD_SCALES:
+            raise MethodError(f"sindy: option threshold_scale={o['threshold_scale']!r}; use 'relative' (x rms of each "
+                              "state's derivative) or 'absolute' (per time_scale second)")
         for key in ("threshold_range", "alpha_range"):
-            lo, hi = o[key]
-            if not 0 < lo <= hi:
+            if key == "threshold_range" and o[key] is None:
+                continue
+            try:
+                lo, hi = o[key]
+                ok = bool(0 < lo <= hi)
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
                 raise MethodError(f"sindy: option {key} must be (low, high) with 0 < low <= high, got {o[key]!r}")
         for d in o["degrees"]:
             self._check_degree(d, "option degrees")
@@ -320,17 +380,23 @@ class SINDy(Method):
         return int(d)
 
     @property
+    def threshold_range(self) -> tuple[float, float]:
+        """The threshold grid's (low, high): the option, or the default of the threshold scale."""
+        r = self.options["threshold_range"]
+        return DEFAULT_THRESHOLD_RANGE[self.options["threshold_scale"]] if r is None else (float(r[0]), float(r[1]))
+
+    @property
     def derivative_alpha(self) -> float:
         a = self.options["derivative_alpha"]
         return float(DEFAULT_DERIVATIVE_ALPHA[self.options["derivative"]] if a is None else a)
 
     # -- protocol ----------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:
-        """Degree x STLSQ threshold (log grid) x ridge alpha (log grid), seed 003's ranges."""
+        """Degree x STLSQ threshold (log grid, relative by default) x ridge alpha (log grid)."""
         o = self.options
         return {
             "degree": np.array([int(d) for d in o["degrees"]]),
-            "threshold": log_grid(*np.log10(o["threshold_range"]), o["n_thresholds"]),
+            "threshold": log_grid(*np.log10(self.threshold_range), o["n_thresholds"]),
             "alpha": log_grid(*np.log10(o["alpha_range"]), o["n_alphas"]),
         }
 
@@ -339,26 +405,34 @@ class SINDy(Method):
         return self._fit_prepared(self._prepare(train), train, params)
 
     def predict(self, fitted: SINDyFit, data: Samples) -> SegmentPredictions:
-        """Open-loop trajectories from each segment's measured y0, all segments batched."""
+        """Open-loop trajectories from each segment's last measured initial output, all segments batched.
+
+        The start is the last row of the initialisation window (``y_init[-1]`` at row N - 1)
+        when the segment has one, else y0 at row 0; no measured output after it is read.
+        """
         self.check_mode(data.mode)
         self._check_signals(fitted, data)
         if not data.segments:
             return SegmentPredictions([], [])
-        x0, controls, times = [], [], []
+        x0, controls, times, starts = [], [], [], []
         for s in data.segments:
-            if s.y0 is None or not np.all(np.isfinite(s.y0)):
+            start, y_start = initial_state(s)
+            if y_start is None or not np.all(np.isfinite(y_start)):
+                where = "y0" if start == 0 else f"y_init (row {start})"
                 raise MethodError(
-                    f"sindy: segment {s.id!r} has no finite initial output y0; simulation needs the measured "
-                    "outputs at the first row"
+                    f"sindy: segment {s.id!r} has no finite initial output {where}; simulation starts from the "
+                    "measured outputs of the segment's first row or initialisation window"
                 )
-            x0.append((np.asarray(s.y0, dtype=np.float64) - fitted.state_mean) / fitted.state_std)
-            controls.append((s.U - fitted.control_mean) / fitted.control_std)
-            times.append(s.t / fitted.time_scale)
+            starts.append(start)
+            x0.append((np.asarray(y_start, dtype=np.float64).reshape(-1) - fitted.state_mean) / fitted.state_std)
+            controls.append((s.U[start:] - fitted.control_mean) / fitted.control_std)
+            times.append(s.t[start:] / fitted.time_scale)
         trajs, diverged = simulate_batch(
             fitted.coef, fitted.powers, np.vstack(x0), controls, times, fitted.lower, fitted.upper,
             integrator=self.options["integrator"], substeps=int(self.options["substeps"]),
         )
-        arrays = [(tr * fitted.state_std + fitted.state_mean)[s.rows] for tr, s in zip(trajs, data.segments)]
+        arrays = [(tr * fitted.state_std + fitted.state_mean)[np.asarray(s.rows) - a]
+                  for tr, s, a in zip(trajs, data.segments, starts)]
         return SegmentPredictions(arrays, diverged)
 
     def predict_grid(
@@ -392,6 +466,12 @@ class SINDy(Method):
             "library_size": int(fitted.powers.shape[0]),
             "degree": int(fitted.params["degree"]),
             "threshold": float(fitted.params["threshold"]),
+            "threshold_scale": fitted.threshold_scale,
+            # the threshold each equation was cut at, in standardised units per time_scale second
+            "threshold_per_equation": (float(fitted.params["threshold"]) * (
+                fitted.derivative_rms if fitted.threshold_scale == "relative" and fitted.derivative_rms is not None
+                else np.ones(fitted.n_states))).tolist(),
+            "derivative_rms": None if fitted.derivative_rms is None else fitted.derivative_rms.tolist(),
             "alpha": float(fitted.params["alpha"]),
             "feature_names": list(names),
             "coefficients": fitted.coef.tolist(),
@@ -406,6 +486,7 @@ class SINDy(Method):
             "derivative": fitted.derivative,
             "derivative_alpha": fitted.derivative_alpha,
             "notes": list(fitted.notes),
+            "warnings": constant_state_warnings(fitted),
         }
 
     # -- internals ---------------------------------------------------------------
@@ -485,6 +566,8 @@ class SINDy(Method):
                     chunk=int(self.options["derivative_chunk"]), margin=int(self.options["derivative_margin"]),
                     max_iter=int(self.options["derivative_max_iter"]),
                 ))
+        xd_all = np.concatenate(xd)
+        rms = np.sqrt(np.mean(xd_all ** 2, axis=0))
         n_conv = sum("converge" in str(w.message) for w in caught)
         if n_conv:
             notes.append(f"differentiation: {n_conv} chunk(s) did not fully converge (derivative_max_iter)")
@@ -495,6 +578,7 @@ class SINDy(Method):
         return _Prepared(
             x=xs, u=us if len(train.input_names) else None, t=tt, x_dot=xd, state_mean=x_mean, state_std=x_std,
             control_mean=u_mean, control_std=u_std, lower=lower, upper=upper, notes=notes,
+            derivative_rms=np.where(np.isfinite(rms) & (rms > 0), rms, 1.0),
         )
 
     def _fit_prepared(self, prep: _Prepared, train: Samples, params: Params) -> SINDyFit:
@@ -505,16 +589,23 @@ class SINDy(Method):
         )
         names = list(train.target_names) + list(train.input_names)
         notes = list(prep.notes)
+        relative = self.options["threshold_scale"] == "relative"
+        # relative: STLSQ on each derivative over its rms, so one threshold cuts every equation at threshold x rms
+        unit = prep.derivative_rms if relative else np.ones_like(prep.derivative_rms)
+        x_dot = [xd / unit for xd in prep.x_dot] if relative else prep.x_dot
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            model.fit(prep.x, t=prep.t, x_dot=prep.x_dot, u=prep.u, feature_names=names)
+            model.fit(prep.x, t=prep.t, x_dot=x_dot, u=prep.u, feature_names=names)
         notes += sorted({str(w.message) for w in caught})
+        if relative:
+            model.optimizer.coef_ = np.asarray(model.optimizer.coef_, dtype=np.float64) * unit[:, None]
         coef = np.array(model.coefficients(), dtype=np.float64)
         powers = np.asarray(model.feature_library.powers_, dtype=np.int64)
         empty = [n for n, row in zip(train.target_names, coef) if not np.any(row)]
         if empty:
             notes.append(
-                f"every term of d({', '.join(empty)})/dt was thresholded away (threshold {p['threshold']:g}): the model is "
+                f"every term of d({', '.join(empty)})/dt was thresholded away (threshold {p['threshold']:g}, "
+                f"{self.options['threshold_scale']}): the model is "
                 "dx/dt = 0, so each prediction is the segment's initial value held constant (a flat line that is "
                 "not a divergence); lower the threshold for a model with terms"
             )
@@ -523,5 +614,6 @@ class SINDy(Method):
             control_mean=prep.control_mean, control_std=prep.control_std, lower=prep.lower, upper=prep.upper,
             time_scale=float(self.options["time_scale"]), params=p, state_names=tuple(train.target_names),
             control_names=tuple(train.input_names), derivative=self.options["derivative"],
-            derivative_alpha=self.derivative_alpha, notes=notes,
+            derivative_alpha=self.derivative_alpha, notes=notes, threshold_scale=self.options["threshold_scale"],
+            derivative_rms=prep.derivative_rms,
         )

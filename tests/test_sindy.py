@@ -290,7 +290,7 @@ def test_predict_grid_shares_work_and_matches_fit_predict():
     m = SINDy(derivative="kalman", degrees=(1, 2), n_thresholds=2, n_alphas=1)
     space = m.search_space(LINEAR)
     assert list(space) == ["degree", "threshold", "alpha"]
-    np.testing.assert_allclose(space["threshold"], [1e-2, 1e3])
+    np.testing.assert_allclose(space["threshold"], [1e-2, 0.5])  # relative to each derivative's rms
     assert space["alpha"][0] == pytest.approx(1e-4)
     grid = grid_points(space)
     test = replace(LINEAR, segments=LINEAR.segments[:2]).without_targets()
@@ -298,15 +298,19 @@ def test_predict_grid_shares_work_and_matches_fit_predict():
     assert out.shape == (4, len(test), 1)
     for k, params in enumerate(grid):
         np.testing.assert_array_equal(out[k], np.concatenate(m.predict(m.fit(LINEAR, params, RNG), test)))
-    # threshold 1e3 removes every term: the simulation stays at y0
-    assert np.all(out[1][: len(test.segments[0])] == test.segments[0].y0)
+    # half the derivative's rms keeps both terms of dx/dt = -2x + 3u
+    assert all(m.describe(m.fit(LINEAR, p, RNG))["term_count"] == 2 for p in grid if p["threshold"] == 0.5)
 
 
-def test_default_grid_is_small_and_spans_seed_ranges():
+def test_default_grid_is_small_relative_and_the_absolute_scale_keeps_the_seed_ranges():
     space = SINDy().search_space(LINEAR)
     assert [len(v) for v in space.values()] == [3, 4, 3]
-    assert space["threshold"][0] == pytest.approx(1e-2) and space["threshold"][-1] == pytest.approx(1e3)
+    assert space["threshold"][0] == pytest.approx(1e-2) and space["threshold"][-1] == pytest.approx(0.5)
     assert space["alpha"][0] == pytest.approx(1e-4) and space["alpha"][-1] == pytest.approx(1e-1)
+    seed = SINDy(threshold_scale="absolute").search_space(LINEAR)["threshold"]
+    assert seed[0] == pytest.approx(1e-2) and seed[-1] == pytest.approx(1e3)
+    given = SINDy(threshold_scale="absolute", threshold_range=(0.01, 0.01), n_thresholds=1).search_space(LINEAR)
+    assert given["threshold"].tolist() == [0.01]
 
 
 # ----------------------------------------------------------------------------- errors
@@ -325,6 +329,10 @@ def test_errors_name_the_problem():
         SINDy(derivative="tvx")
     with pytest.raises(MethodError, match="unknown option"):
         SINDy(bogus=1)
+    with pytest.raises(MethodError, match="option threshold_scale='percent'; use 'relative'"):
+        SINDy(threshold_scale="percent")
+    with pytest.raises(MethodError, match=r"option threshold_range must be \(low, high\)"):
+        SINDy(threshold_range=(1.0, 0.1))
 
 
 def test_a_threshold_that_removes_every_term_gives_a_flagged_flat_line_not_a_divergence():
@@ -335,6 +343,9 @@ def test_a_threshold_that_removes_every_term_gives_a_flagged_flat_line_not_a_div
     d = m.describe(fitted)
     assert d["term_count"] == 0 and d["constant_states"] == ["y"]
     assert any("thresholded away" in n and "not a divergence" in n for n in d["notes"])
+    # ... and in the warnings the job copies into its notes
+    assert d["warnings"] == ["every term of d(y)/dt was thresholded away (threshold 1000, relative): y is simulated "
+                             "as its initial value held, a flat line; lower the threshold"]
     pred = m.predict(fitted, LINEAR.without_targets())
     assert not pred.diverged.any()
     for p, s in zip(pred, LINEAR.segments):
@@ -342,4 +353,92 @@ def test_a_threshold_that_removes_every_term_gives_a_flagged_flat_line_not_a_div
         assert p[0, 0] == pytest.approx(s.y0[0], rel=1e-12)  # at y0 (standardise / unstandardise round trip)
     # a model with terms lists no constant state
     fitted = m.fit(LINEAR, {"degree": 1, "threshold": 0.05, "alpha": 1e-4}, np.random.default_rng(0))
-    assert m.describe(fitted)["constant_states"] == []
+    assert m.describe(fitted)["constant_states"] == [] and m.describe(fitted)["warnings"] == []
+
+
+# ----------------------------------------------------------------------------- (5) scale-free defaults
+def _resampled(samples: Samples, dt: float) -> Samples:
+    """The same sample arrays with another sample period (time = index x dt per segment)."""
+    segs = tuple(replace(s, t=s.t[0] / DT * dt + np.arange(len(s.t)) * dt) for s in samples.segments)
+    return replace(samples, segments=segs, dt=dt)
+
+
+def test_relative_threshold_is_the_absolute_threshold_times_the_derivative_rms():
+    """Two states with derivatives of very different sizes: the relative cut equals per-equation absolute cuts."""
+    rel = SINDy(derivative="kalman")
+    fit = rel.fit(QUADRATIC, {"degree": 3, "threshold": 0.2, "alpha": 1e-4}, RNG)
+    rms = fit.derivative_rms[0]
+    prep = rel._prepare(QUADRATIC)
+    assert rms == pytest.approx(np.sqrt(np.mean(np.concatenate(prep.x_dot) ** 2)), rel=1e-12)
+    absolute = SINDy(derivative="kalman", threshold_scale="absolute")
+    ref = absolute.fit(QUADRATIC, {"degree": 3, "threshold": 0.2 * rms, "alpha": 1e-4}, RNG)
+    np.testing.assert_allclose(fit.coef, ref.coef, rtol=1e-9, atol=1e-12)
+    d = rel.describe(fit)
+    assert d["threshold_scale"] == "relative" and d["threshold_per_equation"] == [pytest.approx(0.2 * rms)]
+    # pysindy's own model object carries the same (rescaled) coefficients
+    x, u = np.array([[0.3], [-1.0]]), np.array([[0.5], [0.1]])
+    np.testing.assert_allclose(np.asarray(fit.model.predict(x, u=u)), library_features(np.hstack([x, u]), fit.powers)
+                               @ fit.coef.T, rtol=1e-10, atol=1e-12)
+
+
+def test_relative_thresholds_are_independent_of_the_sample_period():
+    """The same samples read at 1 ms and at 10 s give the same model (in standardised units) and trajectories."""
+    m = SINDy(derivative="kalman")
+    params = {"degree": 2, "threshold": 0.1, "alpha": 1e-3}
+    fast, slow = _resampled(LINEAR, 1e-3), _resampled(LINEAR, 10.0)
+    a, b = m.fit(fast, params, RNG), m.fit(slow, params, RNG)
+    np.testing.assert_array_equal(a.coef != 0, b.coef != 0)
+    np.testing.assert_allclose(a.coef * 1e-3, b.coef * 10.0, rtol=1e-6, atol=1e-9)  # per second -> per sample
+    for p, q in zip(m.predict(a, fast.without_targets()), m.predict(b, slow.without_targets())):
+        np.testing.assert_allclose(p, q, rtol=1e-7, atol=1e-9)
+
+
+def test_default_grid_keeps_terms_of_a_slow_system_that_absolute_thresholds_empty():
+    """LINEAR's trajectories read as 150 samples of 100 s: dx/dt = (-2x + 3u) / 1000 s, standardised coefficients
+    of a few 1e-3 per second. The seed's absolute grid (1e-2 .. 1e3) removes every term at every point; no point of
+    the relative default grid does."""
+    slow = _resampled(LINEAR, 100.0)
+    rel, seed = SINDy(derivative="kalman"), SINDy(derivative="kalman", threshold_scale="absolute")
+    grid_rel = grid_points(rel.search_space(slow))
+    assert all(rel.describe(rel.fit(slow, p, RNG))["term_count"] >= 2 for p in grid_rel if p["degree"] == 1)
+    assert all(rel.describe(rel.fit(slow, p, RNG))["constant_states"] == [] for p in grid_rel)
+    assert all(seed.describe(seed.fit(slow, p, RNG))["term_count"] == 0
+               for p in grid_points(seed.search_space(slow)) if p["degree"] == 1)
+    # the relative model simulates the slow system exactly as well as the original one, and well
+    rmse = []
+    for data in (slow, LINEAR):
+        fitted = rel.fit(data, {"degree": 1, "threshold": 0.1, "alpha": 1e-4}, RNG)
+        rmse.append(np.sqrt(np.mean((np.concatenate(rel.predict(fitted, data.without_targets())) - data.y) ** 2)))
+    assert rmse[0] == pytest.approx(rmse[1], rel=1e-6) and rmse[0] < 0.1 * np.std(slow.y)
+
+
+# ----------------------------------------------------------------------------- (6) initialisation window
+def _with_init(samples: Samples, n_init: int) -> Samples:
+    """Evaluated view of whole segments with an initialisation window of ``n_init`` samples (as SamplePool builds)."""
+    segs = []
+    for s in samples.segments:
+        segs.append(replace(s, rows=s.rows[n_init:], X=s.X[n_init:], y=s.y[n_init:], y_init=s.y[:n_init]))
+    return replace(samples, segments=tuple(segs), init_samples=n_init)
+
+
+def test_simulation_starts_from_the_last_sample_of_the_init_window():
+    m = SINDy(derivative="kalman")
+    fitted = m.fit(LINEAR, {"degree": 1, "threshold": 0.05, "alpha": 1e-4}, RNG)
+    test = _samples(_linear, seed=11, durations=(6.0, 3.0))
+    view = _with_init(test, 5).without_targets()
+    preds = m.predict(fitted, view)
+    assert [p.shape for p in preds] == [(len(s.t) - 5, 1) for s in test.segments]
+    # the same as a segment that starts at row 4 with y0 = the measured y[4]
+    for p, s in zip(preds, test.segments):
+        tail = replace(s, U=s.U[4:], t=s.t[4:], rows=np.arange(1, len(s.t) - 4), y=None, y0=s.y[4], y_init=None)
+        ref = m.predict(fitted, replace(test, segments=(tail,)))[0]
+        np.testing.assert_array_equal(p, ref)
+    # outputs after the window are never read; the window's last sample is
+    seg = view.segments[0]
+    moved = replace(seg, y_init=seg.y_init + np.r_[0, 0, 0, 0, 1.0][:, None])
+    assert not np.allclose(m.predict(fitted, replace(view, segments=(moved,)))[0], preds[0])
+    early = replace(seg, y_init=seg.y_init + np.r_[1.0, 1.0, 1.0, 1.0, 0][:, None], y0=seg.y0 + 1.0)
+    np.testing.assert_array_equal(m.predict(fitted, replace(view, segments=(early,)))[0], preds[0])
+    bad = replace(seg, y_init=seg.y_init * np.nan)
+    with pytest.raises(MethodError, match=r"segment 's0' has no finite initial output y_init \(row 4\)"):
+        m.predict(fitted, replace(view, segments=(bad,)))
