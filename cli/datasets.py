@@ -27,16 +27,36 @@ def datasets_list() -> None:
         click.echo(f"{b.name:<24} {b.kind:<10} {state:<18} {b.description}")
 
 
+def _duration(seconds: float) -> str:
+    if seconds >= 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.3g} s"
+
+
+def _records(ds, limit: int = 12) -> list[str]:
+    """One line per record (segment) with its length, the first ``limit`` of them."""
+    bounds = ds.segment_bounds()
+    lines = [f"  {sid}: {b - a} rows, {_duration((b - a) * ds.dt)}" for sid, a, b in bounds[:limit]]
+    if len(bounds) > limit:
+        lines.append(f"  ... and {len(bounds) - limit} more")
+    return lines
+
+
+def _notes(ds) -> list[str]:
+    return [f"note: {n}" for n in ds.meta.get("notes", [])]
+
+
 @datasets.command("show")
 @click.argument("ref")
 def datasets_show(ref: str) -> None:
-    """Summary of REF (a built-in name, .parquet file or .toml import spec): segments, columns, roles, units."""
+    """Summary of REF (a built-in name, .parquet file or .toml import spec): records, columns, roles, units, notes."""
     from enginebench.datasets import catalog
 
     ds = catalog.load(ref)
     s = ds.summary()
-    click.echo(f"{ds.name}: {s['rows']} rows in {s['segments']} segment(s), dt = {s['dt_s']:g} s, {s['duration_h']:.1f} h")
-    for key in ("provenance", "licence", "license"):
+    click.echo(f"{ds.name}: {s['rows']} rows in {s['segments']} segment(s), dt = {s['dt_s']:g} s, "
+               f"{_duration(s['rows'] * s['dt_s'])}")
+    for key in ("description", "provenance", "citation", "licence", "license", "protocol"):
         if ds.meta.get(key):
             click.echo(f"{key}: {ds.meta[key]}")
     if ds.meta.get("synthetic"):
@@ -44,6 +64,9 @@ def datasets_show(ref: str) -> None:
     split = ds.meta.get("published_split")
     if split:
         click.echo("published split: " + "; ".join(f"{k}: {', '.join(map(str, v[:6]))}{' ...' if len(v) > 6 else ''}" for k, v in split.items()))
+    click.echo("records:")
+    for line in _records(ds):
+        click.echo(line)
     click.echo(f"{'column':<20} {'role':<9} {'unit':<8} {'min':>12} {'mean':>12} {'max':>12}")
     for c in ds.schema.columns:
         col = ds.frame[c.name]
@@ -51,6 +74,8 @@ def datasets_show(ref: str) -> None:
             click.echo(f"{c.name:<20} {c.role:<9} {c.unit:<8} {col.nunique():>12} distinct")
         else:
             click.echo(f"{c.name:<20} {c.role:<9} {c.unit:<8} {col.min():>12.5g} {col.mean():>12.5g} {col.max():>12.5g}")
+    for line in _notes(ds):
+        click.echo(line)
 
 
 @datasets.command("generate")
@@ -74,17 +99,44 @@ def datasets_generate(name: str, size, seed: int, force: bool) -> None:
 
 @datasets.command("import")
 @click.argument("name")
-@click.option("--from", "source", required=True, type=click.Path(), help="Folder (built-in real data) or file with the raw data.")
-def datasets_import(name: str, source: str) -> None:
-    """Import the real built-in dataset NAME from the user's files into the data home.
+@click.option("--from", "source", default=None, type=click.Path(),
+              help="Folder with the raw files of a real built-in dataset (not used with a .toml spec).")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
+              help="With a .toml spec: also write the imported dataset to this .parquet file.")
+def datasets_import(name: str, source: str | None, output: str | None) -> None:
+    """Import the real built-in dataset NAME from the user's files into the data home, or check a .toml spec.
 
-    For a dataset of your own, write a TOML import spec and give its path wherever a
-    dataset is expected (`datasets show my.toml`, `dataset = "my.toml"` in an experiment).
+    With a TOML import spec (`datasets import my.toml`) the records are read and checked, their
+    lengths and every note (a dropped empty column, a rate written once and checked against dt)
+    printed; nothing is needed afterwards: give the spec's path wherever a dataset is expected
+    (`dataset = "my.toml"` in an experiment). `--output FILE.parquet` also keeps a Parquet copy.
     """
     from enginebench.datasets import catalog
 
     if name.endswith(".toml"):
-        raise DataError(f"{name}: a TOML spec is used directly; give its path as the dataset (no import needed)")
+        from enginebench.datasets.importer import import_table
+        from enginebench.datasets.io import write_dataset
+
+        if source is not None:
+            raise DataError(f"{name}: --from is for built-in datasets; a spec names its own files")
+        ds = import_table(name)
+        verb, where = "read", " (nothing written: experiments read the spec itself)"
+        if output is not None:
+            if not output.endswith(".parquet"):
+                raise DataError(f"--output {output}: give a .parquet file name")
+            verb, where = "imported", f" -> {write_dataset(ds, output)}"
+        click.echo(f"{verb} {ds.name}: {len(ds)} rows in {len(ds.segment_ids)} segment(s), dt = {ds.dt:g} s{where}")
+        for line in _records(ds) + _notes(ds):
+            click.echo(line)
+        return
+    if output is not None:
+        raise DataError(f"--output is for a .toml spec; the built-in {name!r} is kept in the data home")
+    if source is None:
+        builtin = catalog.get_builtin(name)
+        how = builtin.notes.get("import", f"enginebench datasets import {name} --from DIR")
+        raise DataError(f"dataset {name!r} is imported from your copy of its files: give --from DIR ({how})")
     path = catalog.import_builtin(name, source)
     ds = catalog.load(name)
     click.echo(f"imported {name}: {len(ds)} rows in {len(ds.segment_ids)} segment(s) -> {path}")
+    for line in _notes(ds):
+        click.echo(line)

@@ -38,6 +38,18 @@ def _gas_turbine_import(directory: Path) -> Dataset:
     return import_directory(directory)
 
 
+def _silverbox_import(directory: Path) -> Dataset:
+    from enginebench.datasets.sysid_benchmarks import import_silverbox
+
+    return import_silverbox(directory)
+
+
+def _f16_import(directory: Path) -> Dataset:
+    from enginebench.datasets.sysid_benchmarks import import_f16
+
+    return import_f16(directory)
+
+
 def _turboshaft(size_arg: float, seed: int, progress: Callable[[float], None] | None) -> Dataset:
     from enginebench.datasets.turboshaft import generate
 
@@ -60,6 +72,27 @@ BUILTINS: dict[str, Builtin] = {
         importer=_gas_turbine_import,
         targets=("NOX", "CO", "TAT"),
         notes={"import": "enginebench datasets import gas-turbine-emissions --from DIR (the folder with gt_2011.csv ... gt_2015.csv)"},
+    ),
+    "silverbox": Builtin(
+        name="silverbox",
+        kind="real",
+        description="Silverbox (Wigren & Schoukens 2013): electronic nonlinear mass-spring-damper, one record "
+                    "SNLS80mV of 131,072 samples at 610.3515625 Hz; input V1, output V2 (V)",
+        licence="none stated by the distributor; cite Wigren & Schoukens, ECC 2013",
+        importer=_silverbox_import,
+        targets=("V2",),
+        notes={"import": "enginebench datasets import silverbox --from DIR (the folder with SNLS80mV.csv)"},
+    ),
+    "f16-gvt": Builtin(
+        name="f16-gvt",
+        kind="real",
+        description="F-16 ground vibration test (Noel & Schoukens 2017): 4 multisine records of 73,728 samples "
+                    "at 400 Hz; input Force (N), outputs Acceleration1-3 (m/s^2); Voltage internal",
+        licence="none stated by the distributor; cite Noel & Schoukens, 2017",
+        importer=_f16_import,
+        targets=("Acceleration1", "Acceleration2", "Acceleration3"),
+        notes={"import": "enginebench datasets import f16-gvt --from DIR (the folder with the four "
+                         "F16Data_FullMSine_*.csv files)"},
     ),
     "turboshaft": Builtin(
         name="turboshaft",

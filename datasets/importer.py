@@ -1,51 +1,75 @@
-"""Import the user's own CSV or Parquet tables through a small TOML spec.
+"""Import the user's own CSV or Parquet records through a small TOML spec.
 
-A spec names the files, the time column and every column's role and unit. Paths are
-relative to the spec file::
+A spec names the files, how time is given, and every column's role and unit. Paths are
+relative to the spec file. Every key::
 
-    name = "my-engine"
-    files = ["run1.csv", "run2.csv"]   # CSV (.csv .txt .tsv .dat) or Parquet (.parquet .pq)
-    time = "t"                         # the time column
-    time_unit = "s"                    # s | ms | min | h, or "datetime" for ISO 8601 stamps
-    dt = 1.0                           # sample period, seconds
-    gap_tolerance = 3.0                # seconds; a longer step splits a segment (default 1.5 * dt)
-    segment = "voyage"                 # optional column of segment ids (default: one segment per file,
-                                       # named after the file)
+    name = "my-engine"                 # required: the dataset's name
+    dt = 1.0                           # required: sample period, seconds
+    files = ["run1.csv", "run2.csv"]   # CSV (.csv .txt .tsv .dat) or Parquet (.parquet .pq); each file is a
+                                       # record (a segment) named after its stem. Optional when [records] is given.
+    time = "t"                         # optional: the time column. Without it time is the sample index x dt,
+                                       # from 0 in every record (dt is then the only timing information)
+    time_unit = "s"                    # s | ms | min | h, or "datetime" for ISO 8601 stamps (only with time)
+    gap_tolerance = 3.0                # seconds; a longer step splits a record (default 1.5 * dt; only with time)
+    record = "run"                     # optional: a column (role group if declared) that cuts each file of files
+                                       # into records where its value changes; the records are named by its values
+    segment = "voyage"                 # optional, older form: rows grouped by the column's value, in any order
+                                       # (record and segment exclude each other)
+    rate_column = "SampleRate"         # optional: a column holding the sampling rate (Hz), checked against dt
+    period_column = "Period"           # optional: a column holding the sample period (s), checked against dt
     delimiter = ","                    # optional (default ",", or tab for .tsv files)
     provenance = "test bench B, 2024"  # optional, free text
     licence = "CC BY 4.0"              # optional
-    min_segment_rows = 2               # optional: shorter segments are an error ...
+    min_segment_rows = 2               # optional: shorter records are an error ...
     drop_short_segments = false        # ... or, when true, dropped with a warning
-    dt_tolerance = 1e-6                # optional: relative tolerance on steps being multiples of dt
+    dt_tolerance = 1e-6                # optional: relative tolerance on steps being multiples of dt (and on
+                                       # a written rate or period)
 
-    [columns]
-    speed = { role = "input", unit = "rpm" }
-    T_exh = { role = "output", unit = "degC" }
+    [columns]                          # required: the spec's column names, roles and units
+    u = { role = "input", unit = "V" }
+    y = { role = "output", unit = "V" }
     engine = { role = "group" }
+
+    [records.estimation]               # optional wide form: a record read from some columns of a file
+    file = "bench.csv"
+    columns = { u = "uEst", y = "yEst" }  # spec column -> file column (a column left out: same name)
+    # time = "tEst"                    # optional: this record's time column (default: the spec's time, or none)
+    [records.test]
+    file = "bench.csv"                 # records of one file may differ in length: a shorter record's
+    columns = { u = "uVal", y = "yVal" }  # columns end in blank cells, which are ignored
 
 Roles are ``input``, ``output``, ``internal`` and ``group`` (see
 :mod:`enginebench.datasets.schema`); at least one output is needed. Group columns may
-hold text. Undeclared file columns are ignored. ``datetime`` stamps must all carry one
-UTC offset (or none, read as UTC); the dataset's time is then seconds since
-1970-01-01 UTC. A unit left out of the spec is taken from a Parquet file that records
-one (enginebench metadata or an Arrow field's ``unit`` metadata); a declared unit that
-differs from a recorded one is an error.
+hold text. A record's time may restart at 0: records are separate segments. A value of
+the ``record`` column that comes back after another value is an error (its rows would be
+two records with one name); ``segment`` groups such rows instead.
 
-Every error is a one-line :class:`SpecError` (the spec) or :class:`DataError` (a data
-file) whose message starts with the path of the file at fault; see
-:mod:`enginebench.datasets.validate` for the checks on values and time stamps.
+File columns the spec does not read are ignored, but two kinds are reported with a
+one-line note (stored in the dataset's ``meta["notes"]``, printed by ``datasets import``
+and ``datasets show``): a column empty on every line (the nameless column a trailing
+delimiter makes) and a column holding a value only in its first row (a sampling rate
+written once); the note names it and the value. Such a value in a column named ``Fs`` /
+``fs`` (Hz) or ``Ts`` / ``ts`` (s), or in ``rate_column`` / ``period_column``, is
+checked against ``dt`` (see :mod:`enginebench.datasets.column_notes`).
+
+``datetime`` stamps must all carry one UTC offset (or none, read as UTC); the dataset's
+time is then seconds since 1970-01-01 UTC. A unit left out of the spec is taken from a
+Parquet file that records one (enginebench metadata or an Arrow field's ``unit``
+metadata); a declared unit that differs from a recorded one is an error.
+
+Every error is a one-line :class:`SpecError` (the spec, see
+:mod:`enginebench.datasets.import_spec`) or :class:`DataError` (a data file) whose message
+starts with the path of the file at fault; see :mod:`enginebench.datasets.validate` for
+the checks on values and time stamps.
 """
 
 from __future__ import annotations
 
 import csv
-import difflib
 import json
-import math
 import os
 import re
-import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -54,229 +78,126 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from enginebench.datasets.column_notes import SideColumn, side_column_notes
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.schema import Column, Schema
-from enginebench.datasets.validate import DATETIME, TIME_UNITS, check_columns, check_not_constant, validate_frame
-from enginebench.errors import DataError, SpecError
-
-REQUIRED_KEYS = ("name", "files", "time", "dt", "columns")
-OPTIONAL_KEYS = (
-    "time_unit",
-    "gap_tolerance",
-    "segment",
-    "delimiter",
-    "provenance",
-    "licence",
-    "min_segment_rows",
-    "drop_short_segments",
-    "dt_tolerance",
+from enginebench.datasets.import_spec import (  # noqa: F401 - re-exported: the spec's public names
+    ALLOWED_KEYS,
+    ImportSpec,
+    RecordSpec,
+    load_spec,
+    one_line,
+    spec_from_dict,
 )
-ALLOWED_KEYS = REQUIRED_KEYS + OPTIONAL_KEYS
-COLUMN_KEYS = ("role", "unit")
+from enginebench.datasets.schema import Column, Schema
+from enginebench.datasets.validate import DATETIME, NUMERIC_ROLES, check_columns, check_not_constant, validate_frame
+from enginebench.errors import DataError
+
 CSV_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
 PARQUET_SUFFIXES = (".parquet", ".pq")
 
 
+# -- how each file is read ---------------------------------------------------------------------
 @dataclass(frozen=True)
-class ImportSpec:
-    """A checked import spec; ``files`` are resolved against the spec's folder."""
+class _Use:
+    """One way a file is read: as a whole record of ``files`` (``record`` None) or as one [records] table."""
 
-    path: Path
-    name: str
-    files: tuple[Path, ...]
-    time: str
-    dt: float
-    schema: Schema
-    gap_tolerance: float
-    time_unit: str = "s"
-    segment: str | None = None
-    delimiter: str | None = None
-    provenance: str = ""
-    licence: str = ""
-    min_segment_rows: int = 2
-    drop_short_segments: bool = False
-    dt_tolerance: float = 1e-6
+    file: Path
+    record: RecordSpec | None = None
 
-    def delimiter_for(self, file: Path) -> str:
-        """The declared delimiter, else a tab for .tsv files and a comma otherwise."""
-        if self.delimiter is not None:
-            return self.delimiter
-        return "\t" if file.suffix.lower() == ".tsv" else ","
+    def time(self, spec: ImportSpec) -> str | None:
+        return spec.time if self.record is None else self.record.time
 
+    def columns(self, spec: ImportSpec) -> dict[str, str]:
+        """Declared column -> file column."""
+        names = spec.schema.names()
+        return {c: c for c in names} if self.record is None else dict(self.record.columns)
 
-# -- the spec ------------------------------------------------------------------------------
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+    def required(self, spec: ImportSpec) -> dict[str, str]:
+        """File column -> what it is, for messages about a column the file lacks."""
+        time = self.time(spec)
+        if self.record is None:
+            req = {time: "time column"} if time is not None else {}
+            if spec.group_key is not None:
+                req[spec.group_key] = "segment column" if spec.segment is not None else "record column"
+            for c in spec.schema.names():
+                req.setdefault(c, "declared column")
+            return req
+        what = f"[records.{self.record.name}] column"
+        req = {time: f"[records.{self.record.name}] time column"} if time is not None else {}
+        for col in self.record.columns.values():
+            req.setdefault(col, what)
+        return req
 
-
-def _unknown(where: Path, kind: str, key: str, allowed: tuple[str, ...]) -> SpecError:
-    close = difflib.get_close_matches(key, allowed, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return SpecError(f"{where}: unknown {kind} {key!r}{hint}; allowed: {', '.join(allowed)}")
-
-
-def _number(path: Path, doc: dict[str, Any], key: str, default: float | None = None) -> float:
-    v = doc.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise SpecError(f"{path}: {key} must be a positive number of seconds, got {v!r}")
-    return float(v)
+    def text_columns(self, spec: ImportSpec) -> list[str]:
+        """File columns read as text: datetime stamps, group columns and the record/segment column."""
+        cols = self.columns(spec)
+        text = [cols[c.name] for c in spec.schema.columns if c.role == "group"]
+        if spec.time_unit == DATETIME and self.time(spec) is not None:
+            text.append(self.time(spec))  # type: ignore[arg-type]
+        if self.record is None and spec.group_key is not None:
+            text.append(spec.group_key)
+        return text
 
 
-def _text(path: Path, doc: dict[str, Any], key: str, default: str | None = None, *, empty_ok: bool = False) -> str:
-    v = doc.get(key, default)
-    if not isinstance(v, str) or (not v.strip() and not empty_ok):
-        raise SpecError(f"{path}: {key} must be a {'' if empty_ok else 'non-empty '}string, got {v!r}")
-    return v
+def _uses(spec: ImportSpec) -> dict[Path, list[_Use]]:
+    """Every file with the ways it is read, in spec order (files first, then [records] tables)."""
+    out: dict[Path, list[_Use]] = {}
+    for f in spec.files:
+        out.setdefault(f, []).append(_Use(f))
+    for rec in spec.records:
+        out.setdefault(rec.file, []).append(_Use(rec.file, rec))
+    return out
 
 
-def _schema(path: Path, table: Any) -> Schema:
-    if not isinstance(table, dict) or not table:
-        raise SpecError(
-            f'{path}: [columns] must declare at least one column, e.g. T_exh = {{ role = "output", unit = "degC" }}'
-        )
-    cols = []
-    for name, entry in table.items():
-        if isinstance(entry, str):
-            entry = {"role": entry}
-        if not isinstance(entry, dict):
-            raise SpecError(f'{path}: [columns] {name!r} must be a table such as {{ role = "input", unit = "rpm" }}')
-        for k in entry:
-            if k not in COLUMN_KEYS:
-                raise _unknown(path, f"key of column {name!r}:", k, COLUMN_KEYS)
-        if "role" not in entry:
-            raise SpecError(f"{path}: column {name!r} has no role; add role = one of input, output, internal, group")
-        unit = entry.get("unit", "")
-        if not isinstance(entry["role"], str) or not isinstance(unit, str):
-            raise SpecError(f"{path}: column {name!r}: role and unit must be strings")
-        try:
-            cols.append(Column(str(name), entry["role"], unit))
-        except DataError as exc:
-            raise SpecError(f"{path}: {exc}") from exc
-    return Schema(tuple(cols))
-
-
-def load_spec(spec_path: str | Path) -> ImportSpec:
-    """Read and check an import spec (see the module docstring for its keys)."""
-    path = Path(spec_path)
-    if not path.is_file():
-        raise SpecError(f"{path}: import spec not found; give the path of a .toml file")
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: not valid TOML: {_one_line(str(exc))}; fix the spec") from exc
-    except UnicodeDecodeError as exc:
-        raise SpecError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the spec as UTF-8") from exc
-    for key in doc:
-        if key not in ALLOWED_KEYS:
-            raise _unknown(path, "key", key, ALLOWED_KEYS)
-    missing = [k for k in REQUIRED_KEYS if k not in doc]
-    if missing:
-        raise SpecError(
-            f"{path}: missing required key(s) {', '.join(missing)}; an import spec needs "
-            f"{', '.join(REQUIRED_KEYS[:-1])} and a [columns] table"
-        )
-    files = doc["files"]
-    if not isinstance(files, list) or not files or not all(isinstance(f, str) and f.strip() for f in files):
-        raise SpecError(
-            f'{path}: files must be a non-empty list of file names, e.g. files = ["run1.csv"]; got {files!r}'
-        )
-    resolved = tuple(path.parent / f for f in files)
-    if len(set(resolved)) < len(resolved):
-        twice = next(f for i, f in enumerate(files) if resolved[i] in resolved[:i])
-        raise SpecError(f"{path}: file {twice!r} is listed twice in files")
-    time_unit = _text(path, doc, "time_unit", "s")
-    if time_unit not in (*TIME_UNITS, DATETIME):
-        raise SpecError(f"{path}: time_unit {time_unit!r} is not one of {', '.join(TIME_UNITS)}, {DATETIME}")
-    dt = _number(path, doc, "dt")
-    gap = _number(path, doc, "gap_tolerance", 1.5 * dt)
-    if gap < dt:
-        raise SpecError(f"{path}: gap_tolerance = {gap:g} s is shorter than dt = {dt:g} s; make it at least dt")
-    min_rows = doc.get("min_segment_rows", 2)
-    if isinstance(min_rows, bool) or not isinstance(min_rows, int) or min_rows < 1:
-        raise SpecError(f"{path}: min_segment_rows must be a whole number >= 1, got {min_rows!r}")
-    drop = doc.get("drop_short_segments", False)
-    if not isinstance(drop, bool):
-        raise SpecError(f"{path}: drop_short_segments must be true or false, got {drop!r}")
-    tol = doc.get("dt_tolerance", 1e-6)
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 <= tol < 0.5:
-        raise SpecError(f"{path}: dt_tolerance must be a number in [0, 0.5), got {tol!r}")
-    delimiter = doc.get("delimiter")
-    if delimiter is not None and (not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\"\r\n"):
-        raise SpecError(f'{path}: delimiter must be one character such as "," ";" or "\\t", got {delimiter!r}')
-    time = _text(path, doc, "time")
-    segment = _text(path, doc, "segment") if "segment" in doc else None
-    schema = _schema(path, doc["columns"])
-    if time in schema:
-        raise SpecError(f"{path}: the time column {time!r} must not be declared in [columns]; time = names it")
-    for reserved in (SEGMENT, TIME):
-        if reserved in schema:
-            raise SpecError(
-                f"{path}: column name {reserved!r} in [columns] is reserved for the dataset's {reserved} column; "
-                "rename that column in the file and the spec"
-            )
-    if segment is not None and segment in schema and schema[segment].role != "group":
-        raise SpecError(
-            f"{path}: the segment column {segment!r} is declared with role {schema[segment].role!r}; "
-            "a segment column may only also be a group column"
-        )
-    if segment == time:
-        raise SpecError(f"{path}: the segment column and the time column are both {time!r}; they must differ")
-    if not schema.outputs:
-        raise SpecError(f'{path}: no column has role = "output"; declare at least one target in [columns]')
-    return ImportSpec(
-        path=path,
-        name=_text(path, doc, "name"),
-        files=resolved,
-        time=time,
-        dt=dt,
-        schema=schema,
-        gap_tolerance=gap,
-        time_unit=time_unit,
-        segment=segment,
-        delimiter=delimiter,
-        provenance=_text(path, doc, "provenance", "", empty_ok=True),
-        licence=_text(path, doc, "licence", "", empty_ok=True),
-        min_segment_rows=min_rows,
-        drop_short_segments=drop,
-        dt_tolerance=float(tol),
-    )
-
-
-# -- reading one file -----------------------------------------------------------------------
+# -- reading one file --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Table:
-    frame: pd.DataFrame
+    """A whole file: cells by position (``c0``, ``c1``, ...), the header, and each row's line number."""
+
+    raw: pd.DataFrame
+    header: list[str]
     lines: np.ndarray
     word: str
     units: dict[str, str]
+    first_texts: list[str] | None = None
+    pos: dict[str, int] = field(default_factory=dict)
+
+    def column(self, name: str) -> pd.Series:
+        return self.raw[f"c{self.pos[name]}"]
 
 
-def _required(spec: ImportSpec) -> dict[str, str]:
-    req = {spec.time: "time column"}
-    if spec.segment is not None:
-        req[spec.segment] = "segment column"
-    for c in spec.schema.names():
-        req.setdefault(c, "declared column")
-    return req
-
-
-def _too_few_rows(file: Path, n: int, word: str) -> None:
+def _too_few_rows(file: Path, n: int, word: str, record: str | None = None) -> None:
+    """A file (or a record of a wide file, ``record``) needs at least 2 data rows."""
+    if n >= 2:
+        return
+    if record is not None:
+        has = "has no data rows" if n == 0 else f"has only 1 data row ({word} {2 if word == 'line' else 1})"
+        raise DataError(f"{file}: record {record!r} {has}; a record needs at least 2 data rows")
     if n == 0:
         what = "has a header but no data rows" if word == "line" else "has no data rows"
         raise DataError(f"{file}: the file {what}; a file needs at least 2 data rows")
-    if n == 1:
-        first = 2 if word == "line" else 1
-        raise DataError(
-            f"{file}: only 1 data row ({word} {first}); a file needs at least 2 data rows to form a segment"
-        )
+    first = 2 if word == "line" else 1
+    raise DataError(f"{file}: only 1 data row ({word} {first}); a file needs at least 2 data rows to form a segment")
 
 
-def _read_csv(file: Path, spec: ImportSpec) -> _Table:
+def _check_header(file: Path, header: list[str], required: dict[str, str], delim: str | None) -> dict[str, int]:
+    """Every required column is in the header, once; returns each name's first position."""
+    check_columns(header, required, source=str(file), delimiter=delim)
+    where = f"{file}, line 1:" if delim is not None else f"{file}:"
+    for name in required:
+        at = [i + 1 for i, h in enumerate(header) if h == name]
+        if len(at) > 1:
+            raise DataError(f"{where} column {name!r} appears {len(at)} times in the header (fields {at}); rename all but one")
+    return {h: i for i, h in reversed(list(enumerate(header)))}
+
+
+def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str]) -> _Table:
     delim = spec.delimiter_for(file)
     try:
         with open(file, encoding="utf-8-sig", newline="") as fh:
             first = fh.readline()
-            rest_blank = not first.strip() and not fh.read(1 << 16).strip()
+            second = fh.readline()
+            rest_blank = not first.strip() and not second.strip() and not fh.read(1 << 16).strip()
     except UnicodeDecodeError as exc:
         raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
     if not first.strip():
@@ -284,52 +205,40 @@ def _read_csv(file: Path, spec: ImportSpec) -> _Table:
             raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
         raise DataError(f"{file}, line 1: blank; the header must be on line 1")
     header = [h.strip() for h in next(csv.reader([first.rstrip("\r\n")], delimiter=delim))]
-    required = _required(spec)
-    check_columns(header, required, source=str(file), delimiter=delim)
-    for name in required:
-        at = [i + 1 for i, h in enumerate(header) if h == name]
-        if len(at) > 1:
-            raise DataError(
-                f"{file}, line 1: column {name!r} appears {len(at)} times in the header (fields {at}); "
-                "rename all but one"
-            )
-    pos = {h: i for i, h in reversed(list(enumerate(header)))}
-    text_cols = [spec.time] if spec.time_unit == DATETIME else []
-    text_cols += [c.name for c in spec.schema.columns if c.role == "group"]
-    text_cols += [spec.segment] if spec.segment is not None else []
-    frame = _parse_csv(file, delim, header, pos, required, text_cols)
+    pos = _check_header(file, header, required, delim)
+    first_texts = None
+    if second.strip():
+        first_texts = [f.strip() for f in next(csv.reader([second.rstrip("\r\n")], delimiter=delim))]
+    text_pos = sorted({pos[c] for c in text_cols})
+    raw = _parse_csv(file, delim, len(header), text_pos)
     # A float column that overflowed holds inf where the file holds text such as 1e309: re-read it
     # as text so that the error quotes the value as written.
     overflow = [
-        c
+        pos[c]
         for c in required
-        if c not in text_cols and pd.api.types.is_float_dtype(frame[c].dtype) and np.isinf(frame[c].to_numpy()).any()
+        if pos[c] not in text_pos
+        and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
+        and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
     ]
     if overflow:
-        frame = _parse_csv(file, delim, header, pos, required, text_cols + overflow)
-    # Blank lines at the end of the file carry nothing; a blank line inside is reported by line.
-    filled = np.flatnonzero(frame.notna().any(axis=1).to_numpy())
-    frame = frame.iloc[: (filled[-1] + 1 if len(filled) else 0)].reset_index(drop=True)
-    _too_few_rows(file, len(frame), "line")
-    return _Table(frame, np.arange(len(frame)) + 2, "line", {})
+        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)))
+    return _Table(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
 
 
-def _parse_csv(
-    file: Path, delim: str, header: list[str], pos: dict[str, int], required: dict[str, str], text_cols: list[str]
-) -> pd.DataFrame:
-    """The required columns; ``text_cols`` kept as text, the others parsed as numbers where they can be.
+def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int]) -> pd.DataFrame:
+    """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
 
     Columns holding anything that is not a number come back as text, which
     :func:`validate.parse_numbers` then reports with its line.
     """
     try:
-        raw = pd.read_csv(
+        return pd.read_csv(
             file,
             sep=delim,
             header=0,
-            names=[f"c{i}" for i in range(len(header))],
+            names=[f"c{i}" for i in range(n_fields)],
             index_col=False,
-            dtype={f"c{pos[c]}": str for c in text_cols},
+            dtype={f"c{i}": str for i in text_pos},
             skip_blank_lines=False,
             encoding="utf-8-sig",
         )
@@ -340,10 +249,9 @@ def _parse_csv(
                 f"{file}, line {m.group(2)}: {m.group(3)} fields where the header has {m.group(1)} "
                 "(a stray delimiter or a decimal comma?); fix the row"
             ) from exc
-        raise DataError(f"{file}: cannot parse the CSV ({_one_line(str(exc))}); check delimiter and quoting") from exc
+        raise DataError(f"{file}: cannot parse the CSV ({one_line(str(exc))}); check delimiter and quoting") from exc
     except UnicodeDecodeError as exc:
         raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
-    return pd.DataFrame({name: raw[f"c{pos[name]}"] for name in required})
 
 
 def _recorded_units(schema: pa.Schema) -> dict[str, str]:
@@ -355,52 +263,168 @@ def _recorded_units(schema: pa.Schema) -> dict[str, str]:
             units = {k: v.get("unit", "") for k, v in json.loads(raw).get("schema", {}).items()}
         except (ValueError, AttributeError):
             units = {}
-    for field in schema:
-        meta = field.metadata or {}
+    for fld in schema:
+        meta = fld.metadata or {}
         for key in (b"unit", b"units"):
             if key in meta:
-                units[field.name] = meta[key].decode("utf-8", "replace")
+                units[fld.name] = meta[key].decode("utf-8", "replace")
     return {k: v for k, v in units.items() if v}
 
 
-def _read_parquet(file: Path, spec: ImportSpec) -> _Table:
+def _read_parquet(file: Path, spec: ImportSpec, required: dict[str, str], times: list[str]) -> _Table:
     try:
         schema = pq.read_schema(file)
     except (pa.ArrowInvalid, OSError) as exc:
-        raise DataError(f"{file}: not a Parquet file ({_one_line(str(exc))}); give CSV or Parquet files") from exc
-    required = _required(spec)
-    check_columns(schema.names, required, source=str(file))
+        raise DataError(f"{file}: not a Parquet file ({one_line(str(exc))}); give CSV or Parquet files") from exc
+    header = list(schema.names)
+    pos = _check_header(file, header, required, None)
     try:
-        frame = pq.read_table(file, columns=list(required)).to_pandas()
+        frame = pq.read_table(file).to_pandas()
     except (pa.ArrowException, OSError) as exc:
         raise DataError(
-            f"{file}: cannot read the Parquet data ({_one_line(str(exc))}); the file may be damaged"
+            f"{file}: cannot read the Parquet data ({one_line(str(exc))}); the file may be damaged"
         ) from exc
+    frame.columns = [f"c{i}" for i in range(len(header))]
     _too_few_rows(file, len(frame), "row")
-    if spec.time_unit != DATETIME and pd.api.types.is_datetime64_any_dtype(frame[spec.time].dtype):
-        raise DataError(
-            f"{file}, column {spec.time!r}: holds timestamps but time_unit = {spec.time_unit!r}; "
-            'set time_unit = "datetime"'
-        )
-    return _Table(frame, np.arange(len(frame)) + 1, "row", _recorded_units(schema))
+    for t in times:
+        if spec.time_unit != DATETIME and pd.api.types.is_datetime64_any_dtype(frame[f"c{pos[t]}"].dtype):
+            raise DataError(
+                f"{file}, column {t!r}: holds timestamps but time_unit = {spec.time_unit!r}; "
+                'set time_unit = "datetime"'
+            )
+    return _Table(frame, header, np.arange(len(frame)) + 1, "row", _recorded_units(schema), None, pos)
 
 
-def _read(file: Path, spec: ImportSpec) -> _Table:
+def _read(file: Path, spec: ImportSpec, uses: list[_Use]) -> _Table:
+    named = (
+        f"named in [records.{uses[0].record.name}] of {spec.path}" if uses[0].record is not None
+        else f"listed in files of {spec.path}"
+    )
     if not file.exists():
-        raise DataError(f"{file}: file not found (listed in files of {spec.path}; paths are relative to the spec)")
+        raise DataError(f"{file}: file not found ({named}; paths are relative to the spec)")
     if file.is_dir():
-        raise DataError(f"{file}: is a folder; list data files in files")
+        raise DataError(f"{file}: is a folder; {'list data files in files' if uses[0].record is None else 'name a data file'}")
+    required: dict[str, str] = {}
+    text: list[str] = []
+    for use in uses:
+        for k, v in use.required(spec).items():
+            required.setdefault(k, v)
+        text += use.text_columns(spec)
     suffix = file.suffix.lower()
     if suffix in PARQUET_SUFFIXES:
-        return _read_parquet(file, spec)
+        times = [t for t in (u.time(spec) for u in uses) if t is not None]
+        return _read_parquet(file, spec, required, times)
     if suffix in CSV_SUFFIXES:
         if file.stat().st_size == 0:
             raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
-        return _read_csv(file, spec)
+        return _read_csv(file, spec, required, text)
     raise DataError(
         f"{file}: unsupported file type {suffix or '(none)'!r}; give CSV ({', '.join(CSV_SUFFIXES)}) "
         f"or Parquet ({', '.join(PARQUET_SUFFIXES)}) files"
     )
+
+
+# -- one record source: a file of files, or a [records] table ---------------------------------------
+def _record_ids(file: Path, column: str, ids: pd.Series, lines: np.ndarray, word: str, *, contiguous: bool) -> Any:
+    """Record names from a record/segment column; ``contiguous``: a new record where the value changes."""
+    what = "record name" if contiguous else "segment id"
+    if ids.isna().any():
+        i = int(np.flatnonzero(ids.isna().to_numpy())[0])
+        raise DataError(f"{file}, column {column!r}, {word} {lines[i]}: missing {what}; fill it or remove the row")
+    names = ids.astype(str).str.strip()
+    if contiguous:
+        v = names.to_numpy(dtype=object)
+        start = np.r_[True, v[1:] != v[:-1]]
+        runs = pd.Series(v[start])
+        again = runs.duplicated().to_numpy()
+        if again.any():
+            k = int(np.flatnonzero(again)[0])
+            i = int(np.flatnonzero(start)[k])
+            first = int(np.flatnonzero(v == v[i])[0])
+            raise DataError(
+                f"{file}, column {column!r}, {word} {lines[i]}: record {v[i]!r} starts again after other records "
+                f"(it began on {word} {lines[first]}); give each record its own name, or use segment = "
+                f"{json.dumps(column)} to group rows by value"
+            )
+    return names
+
+
+def _first_row_only(file: Path, frame: pd.DataFrame, names: list[str], shown: dict[str, str], lines: np.ndarray,
+                    word: str) -> None:
+    """A declared column holding a value in its first row only (a rate written once) cannot be a signal."""
+    if len(frame) < 2:
+        return
+    for c in names:
+        filled = frame[c].notna().to_numpy()
+        if filled[0] and not filled[1:].any():
+            col = shown.get(c, c)
+            raise DataError(
+                f"{file}, column {col!r}: holds a value only in its first row ({word} {lines[0]}), like a sampling "
+                "rate written once; remove it from [columns] (an undeclared column is dropped with a note)"
+            )
+
+
+def _source_frame(use: _Use, table: _Table, spec: ImportSpec) -> tuple[pd.DataFrame, np.ndarray, dict[str, str]]:
+    """The rows of one record source: SEGMENT, the time column if any and the declared columns (logical names)."""
+    file, time = use.file, use.time(spec)
+    mapping = use.columns(spec)
+    cols: dict[str, pd.Series] = {}
+    if time is not None:
+        cols[time] = table.column(time)
+    for logical, col in mapping.items():
+        cols[logical] = table.column(col)
+    key = spec.group_key if use.record is None else None
+    if key is not None and key not in cols:
+        cols[key] = table.column(key)
+    frame = pd.DataFrame(cols)
+    # Blank cells at the end carry nothing (blank lines, a shorter record of a wide file);
+    # a blank cell inside is reported with its line.
+    filled = np.flatnonzero(frame.notna().any(axis=1).to_numpy())
+    n = filled[-1] + 1 if len(filled) else 0
+    frame = frame.iloc[:n].reset_index(drop=True)
+    lines = table.lines[:n]
+    if use.record is None:
+        _too_few_rows(file, n, table.word)
+        ids: Any = file.stem
+        if key is not None:
+            ids = _record_ids(file, key, frame[key], lines, table.word, contiguous=spec.record is not None)
+    else:
+        _too_few_rows(file, n, table.word, record=use.record.name)
+        ids = use.record.name
+    numeric = [c.name for c in spec.schema.columns if c.role in NUMERIC_ROLES]
+    _first_row_only(file, frame, numeric, mapping, lines, table.word)
+    frame = frame.assign(**{SEGMENT: ids})
+    shown = {k: v for k, v in mapping.items() if k != v}
+    return frame, lines, shown
+
+
+def _side_notes(file: Path, table: _Table, uses: list[_Use], spec: ImportSpec) -> list[str]:
+    """Notes on the columns of ``file`` that no record reads."""
+    read = {table.pos[c] for use in uses for c in use.required(spec)}
+    side = [
+        SideColumn(i, name, table.raw[f"c{i}"], table.first_texts[i] if table.first_texts and i < len(table.first_texts)
+                   else None)
+        for i, name in enumerate(table.header)
+        if i not in read
+    ]
+    return side_column_notes(
+        side,
+        file=str(file),
+        label=_label(file, spec),
+        n_fields=len(table.header),
+        dt=spec.dt,
+        dt_tolerance=spec.dt_tolerance,
+        rate_column=spec.rate_column,
+        period_column=spec.period_column,
+        lines=table.lines,
+        word=table.word,
+    )
+
+
+def _label(file: Path, spec: ImportSpec) -> str:
+    """A file as notes name it: relative to the spec's folder when inside it, else as given."""
+    rel = os.path.relpath(file, spec.path.parent)
+    return str(file) if rel.startswith("..") else rel
 
 
 def _zone_name(zone: str) -> str:
@@ -409,83 +433,103 @@ def _zone_name(zone: str) -> str:
 
 # -- the whole import ------------------------------------------------------------------------
 def import_table(spec_path: str | Path) -> Dataset:
-    """Import the files of an import spec as one Dataset (what ``datasets import --spec`` calls)."""
-    spec = load_spec(spec_path)
+    """Import the records of an import spec file as one Dataset (what ``datasets show|import SPEC`` call)."""
+    return import_spec(load_spec(spec_path))
+
+
+def import_spec(spec: ImportSpec) -> Dataset:
+    """Import the records of a checked spec: one segment per record, notes in ``meta["notes"]``."""
     units = {c.name: c.unit for c in spec.schema.columns}
     unit_from = {c.name: "the spec" for c in spec.schema.columns if c.unit}
     seen: dict[str, Path] = {}
     zones: dict[str, Path] = {}
     frames: list[pd.DataFrame] = []
     dropped: list[tuple[str, int]] = []
-    for file in spec.files:
-        table = _read(file, spec)
+    notes: list[str] = []
+    plan = _uses(spec)
+    n_sources = sum(len(u) for u in plan.values())
+    rate_seen = False
+    for file, uses in plan.items():
+        table = _read(file, spec, uses)
         for name, rec in table.units.items():
-            if name not in units or units[name] == rec:
-                continue
-            if units[name]:
-                raise DataError(
-                    f"{file}, column {name!r}: unit mismatch: {unit_from[name]} says {units[name]!r} but the file "
-                    f"records {rec!r}; fix the unit in [columns] or convert the column"
-                )
-            units[name], unit_from[name] = rec, str(file)
-        frame = table.frame
-        if spec.segment is not None:
-            ids = frame[spec.segment]
-            if ids.isna().any():
-                i = int(np.flatnonzero(ids.isna().to_numpy())[0])
-                raise DataError(
-                    f"{file}, column {spec.segment!r}, {table.word} {table.lines[i]}: missing segment id; "
-                    "fill it or remove the row"
-                )
-            frame = frame.assign(**{SEGMENT: ids.astype(str).str.strip()})
-        else:
-            frame = frame.assign(**{SEGMENT: file.stem})
-        out = validate_frame(
-            frame,
-            spec.schema,
-            spec.dt,
-            source=str(file),
-            time_col=spec.time,
-            gap_tolerance=spec.gap_tolerance,
-            min_segment_rows=spec.min_segment_rows,
-            time_unit=spec.time_unit,
-            dt_tolerance=spec.dt_tolerance,
-            drop_short_segments=spec.drop_short_segments,
-            check_constant=len(spec.files) == 1,
-            lines=table.lines,
-            row_word=table.word,
-        )
-        for sid in pd.unique(out[SEGMENT]):
-            if sid in seen:
-                raise DataError(
-                    f"{file}: segment {sid!r} also comes from {seen[sid]}; segment ids must be unique across "
-                    "files - rename the file or the segment ids"
-                )
-            seen[sid] = file
-        zone = out.attrs.get("time_zone")
-        if zone is not None:
-            zones.setdefault(zone, file)
-            if len(zones) > 1:
-                (z0, f0), *_ = zones.items()
-                raise DataError(
-                    f"{file}, column {spec.time!r}: mixed time zones: this file has {_zone_name(zone)}, "
-                    f"{f0} has {_zone_name(z0)}; "
-                    "write every stamp with one UTC offset (e.g. all in UTC)"
-                )
-        dropped += out.attrs.get("dropped_segments", [])
-        frames.append(out)
+            logical = [c for u in uses for c, col in u.columns(spec).items() if col == name]
+            for c in logical:
+                if units[c] == rec:
+                    continue
+                if units[c]:
+                    raise DataError(
+                        f"{file}, column {name!r}: unit mismatch: {unit_from[c]} says {units[c]!r} but the file "
+                        f"records {rec!r}; fix the unit in [columns] or convert the column"
+                    )
+                units[c], unit_from[c] = rec, str(file)
+        notes += _side_notes(file, table, uses, spec)
+        rate_seen |= any(c in table.header for c in (spec.rate_column, spec.period_column) if c is not None)
+        for use in uses:
+            frame, lines, shown = _source_frame(use, table, spec)
+            time = use.time(spec)
+            out = validate_frame(
+                frame,
+                spec.schema,
+                spec.dt,
+                source=str(file),
+                time_col=time,
+                gap_tolerance=spec.gap_tolerance,
+                min_segment_rows=spec.min_segment_rows,
+                time_unit=spec.time_unit,
+                dt_tolerance=spec.dt_tolerance,
+                drop_short_segments=spec.drop_short_segments,
+                check_constant=n_sources == 1,
+                lines=lines,
+                row_word=table.word,
+                shown=shown,
+            )
+            for sid in pd.unique(out[SEGMENT]):
+                if sid in seen:
+                    raise DataError(
+                        f"{file}: segment {sid!r} also comes from {seen[sid]}; segment ids must be unique across "
+                        "files - rename the file or the segment ids"
+                    )
+                seen[sid] = file
+            zone = out.attrs.get("time_zone")
+            if zone is not None:
+                zones.setdefault(zone, file)
+                if len(zones) > 1:
+                    (z0, f0), *_ = zones.items()
+                    raise DataError(
+                        f"{file}, column {time!r}: mixed time zones: this file has {_zone_name(zone)}, "
+                        f"{f0} has {_zone_name(z0)}; "
+                        "write every stamp with one UTC offset (e.g. all in UTC)"
+                    )
+            dropped += out.attrs.get("dropped_segments", [])
+            frames.append(out)
+    for key in ("rate_column", "period_column"):
+        col = getattr(spec, key)
+        if col is not None and not rate_seen:
+            raise DataError(
+                f"{spec.path}: {key} {col!r} is in none of the files; check the name (it is case-sensitive) "
+                f"or remove {key}"
+            )
     frame = pd.concat(frames, ignore_index=True)
     schema = Schema(tuple(Column(c.name, c.role, units[c.name]) for c in spec.schema.columns))
-    if len(spec.files) > 1:
-        check_not_constant(frame, schema, source=str(spec.path), scope=f"all {len(spec.files)} files")
+    if n_sources > 1:
+        scope = f"all {len(spec.files)} files" if not spec.records else f"every record ({len(seen)} in all)"
+        check_not_constant(frame, schema, source=str(spec.path), scope=scope)
     meta: dict[str, Any] = {
         "provenance": spec.provenance,
         "licence": spec.licence,
-        "files": [os.path.relpath(p, spec.path.parent) for p in spec.files],
-        "time_unit": spec.time_unit,
+        "files": [os.path.relpath(p, spec.path.parent) for p in plan],
+        "time_unit": spec.time_unit if spec.time is not None or any(r.time for r in spec.records) else "index",
     }
+    if spec.records:
+        meta["records"] = {
+            r.name: {"file": os.path.relpath(r.file, spec.path.parent),
+                     "columns": {k: v for k, v in r.columns.items() if k != v}, "time": r.time}
+            for r in spec.records
+        }
     if zones:
         meta["time_zone"] = next(iter(zones))
     if dropped:
         meta["dropped_segments"] = len(dropped)
+    if notes:
+        meta["notes"] = notes
     return Dataset(name=spec.name, frame=frame, schema=schema, dt=spec.dt, meta=meta)

@@ -264,17 +264,38 @@ def parse_time(
 
 
 # -- whole-table checks -------------------------------------------------------------------
-def check_not_constant(frame: pd.DataFrame, schema: Schema, *, source: str, scope: str = "the whole file") -> None:
-    """Raise DataError when an input or output column holds one value on every row."""
+def check_not_constant(
+    frame: pd.DataFrame,
+    schema: Schema,
+    *,
+    source: str,
+    scope: str = "the whole file",
+    shown: Mapping[str, str] | None = None,
+) -> None:
+    """Raise DataError when an input or output column holds one value on every row.
+
+    ``shown`` maps a schema column to the file column named in the message.
+    """
     for c in schema.columns:
         if c.role not in ("input", "output"):
             continue
         x = frame[c.name].to_numpy(dtype=float)
         if len(x) and np.nanmin(x) == np.nanmax(x):
             raise DataError(
-                f"{source}, column {c.name!r}: constant value {_num(x[0])} over {scope}; a constant {c.role} "
+                f"{source}, column {(shown or {}).get(c.name, c.name)!r}: constant value {_num(x[0])} over {scope}; a constant {c.role} "
                 "carries no information - remove it from [columns]"
             )
+
+
+def _index_ticks(sorted_codes: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Each row's sample index within its segment (rows in file order), in the rows' original order."""
+    n = len(order)
+    pos = np.arange(n)
+    first = np.r_[True, sorted_codes[1:] != sorted_codes[:-1]] if n else np.zeros(0, dtype=bool)
+    start = np.maximum.accumulate(np.where(first, pos, 0)) if n else pos
+    ticks = np.empty(n, dtype=np.int64)
+    ticks[order] = pos - start
+    return ticks
 
 
 def validate_frame(
@@ -283,7 +304,7 @@ def validate_frame(
     dt: float,
     *,
     source: str,
-    time_col: str,
+    time_col: str | None,
     gap_tolerance: float,
     min_segment_rows: int = 2,
     time_unit: str = "s",
@@ -292,11 +313,15 @@ def validate_frame(
     check_constant: bool = True,
     lines: np.ndarray | None = None,
     row_word: str = "line",
+    shown: Mapping[str, str] | None = None,
 ) -> pd.DataFrame:
     """Check one parsed file and return its clean frame (``segment``, ``time`` s, schema columns).
 
     ``lines`` gives each row's line number in the file (default: position + 2, the
-    header being line 1). A step between consecutive stamps of a segment must be a
+    header being line 1). ``shown`` maps a schema column to the file column it was read
+    from, for messages (a record of a wide file reads ``u`` from ``uEst``). Without a time
+    column (``time_col=None``) time is the sample index within each segment times ``dt``,
+    from 0 in every segment. A step between consecutive stamps of a segment must be a
     positive multiple k >= 1 of ``dt`` within ``dt_tolerance * k * dt`` unless it exceeds
     ``gap_tolerance`` seconds, in which case the segment is split there. Pieces shorter
     than ``min_segment_rows`` raise DataError, or are dropped with a warning when
@@ -315,40 +340,46 @@ def validate_frame(
     ln = np.arange(n) + (2 if word == "line" else 1) if lines is None else np.asarray(lines)
     if n == 0:
         raise DataError(f"{source}: no data rows; the file must hold at least {min_segment_rows} rows")
+    shown = dict(shown or {})
     for c in schema.names():
         if c in (SEGMENT, TIME, time_col):
             raise SpecError(f"{source}: column {c!r} clashes with the {'time' if c != SEGMENT else 'segment'} column")
-    required = {SEGMENT: "segment column", time_col: "time column", **{c: "declared column" for c in schema.names()}}
+    required = {SEGMENT: "segment column", **({time_col: "time column"} if time_col is not None else {})}
+    required.update({c: "declared column" for c in schema.names()})
     check_columns(list(frame.columns), required, source=source)
 
     seg_raw = frame[SEGMENT]
     if seg_raw.isna().any():
         i = _first(seg_raw.isna().to_numpy(), ln)
         raise DataError(f"{source}, column {SEGMENT!r}, {word} {ln[i]}: missing segment id; fill it or remove the row")
-    ticks, scale, zone = parse_time(frame[time_col], time_unit, source=source, column=time_col, lines=ln, word=word)
+    zone = None
+    if time_col is not None:
+        ticks, scale, zone = parse_time(frame[time_col], time_unit, source=source, column=time_col, lines=ln, word=word)
     values: dict[str, np.ndarray] = {}
     labels: dict[str, np.ndarray] = {}
     for c in schema.columns:
         raw = frame[c.name]
+        name = shown.get(c.name, c.name)
         if c.role in NUMERIC_ROLES:
-            x = parse_numbers(raw, source=source, column=c.name, lines=ln, word=word)
-            _require_finite(x, raw, source=source, column=c.name, lines=ln, word=word)
+            x = parse_numbers(raw, source=source, column=name, lines=ln, word=word)
+            _require_finite(x, raw, source=source, column=name, lines=ln, word=word)
             values[c.name] = x
         else:
-            values[c.name], labels[c.name] = _labels(raw, source=source, column=c.name, lines=ln, word=word)
+            values[c.name], labels[c.name] = _labels(raw, source=source, column=name, lines=ln, word=word)
     if check_constant:
-        check_not_constant(pd.DataFrame(values), schema, source=source)
+        check_not_constant(pd.DataFrame(values), schema, source=source, shown=shown)
 
     # Group rows by segment (first appearance), keep file order inside a segment.
     codes, uniques = _factorize_text(seg_raw)
     order = np.argsort(codes, kind="stable")
+    if time_col is None:
+        ticks, scale = _index_ticks(codes[order], order), float(dt)
     cs, ts, ls = codes[order], ticks[order], ln[order]
     same = cs[1:] == cs[:-1]
     d = np.diff(ts)
-    raw_t = frame[time_col]
 
     def stamp(i: int) -> str:
-        return _show(raw_t.iloc[order[i]])
+        return _show(frame[time_col].iloc[order[i]]) if time_col is not None else str(ts[i])
 
     bad = same & (d <= 0)
     if bad.any():

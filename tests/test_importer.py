@@ -28,8 +28,8 @@ MALFORMED = DATA / "malformed"
 GOOD = DATA / "good"
 
 ALLOWED = (
-    "name, files, time, dt, columns, time_unit, gap_tolerance, segment, delimiter, provenance, licence, "
-    "min_segment_rows, drop_short_segments, dt_tolerance"
+    "name, dt, columns, files, records, time, time_unit, gap_tolerance, segment, record, rate_column, "
+    "period_column, delimiter, provenance, licence, min_segment_rows, drop_short_segments, dt_tolerance"
 )
 CASES: dict[str, tuple[type[EngineBenchError], str]] = {
     "wrong_delimiter": (
@@ -106,7 +106,8 @@ CASES: dict[str, tuple[type[EngineBenchError], str]] = {
     ),
     "missing_required_key": (
         SpecError,
-        "{dir}/spec.toml: missing required key(s) dt; an import spec needs name, files, time, dt and a [columns] table",
+        "{dir}/spec.toml: missing required key(s) dt; an import spec needs name, dt, files (or [records.NAME] tables) "
+        "and a [columns] table",
     ),
     "bad_toml": (SpecError, "{dir}/spec.toml: not valid TOML: Invalid value (at line 4, column 6); fix the spec"),
     "file_not_found": (
