@@ -8,8 +8,12 @@ mode, window, method, split, metric) and, for every row, reports
   the mean of the per-repetition differences over the repetitions both runs have),
 - a verdict: ``better`` or ``worse`` when B's mean lies outside A's interval (a metric
   "changed beyond its interval"; better/worse follows the metric's direction), else
-  ``within``. Where A has no interval (a single repetition) its interval is the point
-  ``[mean, mean]``, the same convention ``guard`` uses.
+  ``within``. Where A has no interval (a single repetition, or identical repetitions)
+  its interval is the point ``[mean, mean]``, the same convention ``guard`` uses.
+
+Identical repetitions are copies, not evidence: a difference that is the same on every
+repetition, or two runs whose values never vary, get no interval and no test
+(``test_note`` says why), never an interval of width 0 or p = 0.
 
 Repetitions pair up when both runs drew the same training rows for repetition r: the
 subsample seed depends only on (seed, repetition, split), so that holds when dataset,
@@ -29,7 +33,7 @@ import scipy.stats
 
 from enginebench.errors import DataError
 from enginebench.results.metrics import METRICS
-from enginebench.results.stats import paired_ttest, t_interval, wilcoxon
+from enginebench.results.stats import paired_pvalues, t_interval
 from enginebench.results.tables import with_skill, summarize
 
 __all__ = [
@@ -54,7 +58,7 @@ PAIRING_KEYS = ("dataset", "dataset_variant", "seed", "train_size", "split", "ro
 COMPARE_COLUMNS = JOIN + [
     "lower_is_better", "mean_a", "ci_low_a", "ci_high_a", "n_a", "mean_b", "ci_low_b", "ci_high_b", "n_b",
     "difference", "diff_low", "diff_high", "relative", "paired", "n_pairs", "t_test", "t_pvalue",
-    "rank_test", "rank_pvalue", "verdict",
+    "rank_test", "rank_pvalue", "verdict", "test_note",
 ]
 
 
@@ -81,7 +85,10 @@ def pairing(config_a: dict[str, Any], config_b: dict[str, Any]) -> tuple[bool, s
 
 
 def welch_interval(a: Sequence[float], b: Sequence[float], level: float = 0.95) -> tuple[float, float, float]:
-    """mean(b) - mean(a) with Welch's t interval (Welch-Satterthwaite degrees of freedom)."""
+    """mean(b) - mean(a) with Welch's t interval (Welch-Satterthwaite degrees of freedom).
+
+    Two samples without spread (copies) have no interval: `(difference, nan, nan)`.
+    """
     x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if x.size < 2 or y.size < 2:
         raise DataError(f"Welch's interval needs at least 2 repetitions per run, got {x.size} and {y.size}")
@@ -89,42 +96,46 @@ def welch_interval(a: Sequence[float], b: Sequence[float], level: float = 0.95) 
     va, vb = x.var(ddof=1) / x.size, y.var(ddof=1) / y.size
     se2 = va + vb
     if se2 == 0.0:
-        return diff, diff, diff
+        return diff, float("nan"), float("nan")
     df = se2**2 / (va**2 / (x.size - 1) + vb**2 / (y.size - 1))
     half = float(scipy.stats.t.ppf(0.5 * (1.0 + level), df) * np.sqrt(se2))
     return diff, diff - half, diff + half
 
 
 def _unpaired_tests(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(Welch t p-value, Mann-Whitney U p-value); identical constant samples give 1.0."""
+    """(Welch t p-value, Mann-Whitney U p-value); equal constant samples give 1.0, different ones no test (nan)."""
     if np.all(a == a[0]) and np.all(b == b[0]):
         if a[0] == b[0]:
             return 1.0, 1.0
-        return 0.0, float(scipy.stats.mannwhitneyu(b, a, alternative="two-sided").pvalue)
+        return float("nan"), float("nan")  # copies on both sides: no variance to test against
     t_p = float(scipy.stats.ttest_ind(b, a, equal_var=False).pvalue)
     u_p = float(scipy.stats.mannwhitneyu(b, a, alternative="two-sided").pvalue)
     return t_p, u_p
 
 
 def _test_row(a: pd.Series | None, b: pd.Series | None, paired: bool, level: float) -> tuple:
-    """(difference, low, high, n_pairs, t_test, t_p, rank_test, rank_p) for one JOIN key."""
+    """(difference, low, high, n_pairs, t_test, t_p, rank_test, rank_p, test_note) for one JOIN key."""
     nan = float("nan")
     if a is None or b is None:
-        return nan, nan, nan, 0, "", nan, "", nan
+        return nan, nan, nan, 0, "", nan, "", nan, "in one run only"
     if paired:
         both = pd.concat([a.rename("a"), b.rename("b")], axis=1, join="inner")
         if len(both) < 2:  # no test possible: report the plain difference of the means
-            return float(b.mean() - a.mean()), nan, nan, len(both), "", nan, "", nan
-        d, low, high = t_interval((both["b"] - both["a"]).to_numpy())
-        _, t_p = paired_ttest(both["b"], both["a"])
-        _, w_p = wilcoxon(both["b"], both["a"])
-        return d, low, high, len(both), "paired t", t_p, "Wilcoxon", w_p
+            return (float(b.mean() - a.mean()), nan, nan, len(both), "", nan, "", nan,
+                    f"only {len(both)} paired repetition(s); a paired test needs at least 2")
+        d, low, high = t_interval((both["b"] - both["a"]).to_numpy(), level=level)
+        t_p, w_p, note = paired_pvalues(both["b"], both["a"])
+        if note:
+            return d, nan, nan, len(both), "", nan, "", nan, note
+        return d, low, high, len(both), "paired t", t_p, "Wilcoxon", w_p, ""
     x, y = a.to_numpy(dtype=float), b.to_numpy(dtype=float)
     if x.size < 2 or y.size < 2:
-        return float(y.mean() - x.mean()), nan, nan, 0, "", nan, "", nan
+        return float(y.mean() - x.mean()), nan, nan, 0, "", nan, "", nan, "too few repetitions for a test"
     d, low, high = welch_interval(x, y, level)
     t_p, u_p = _unpaired_tests(x, y)
-    return d, low, high, 0, "Welch t", t_p, "Mann-Whitney U", u_p
+    if np.isnan(t_p):
+        return d, nan, nan, 0, "", nan, "", nan, "identical repetitions (each run gave the same value every time): no test"
+    return d, low, high, 0, "Welch t", t_p, "Mann-Whitney U", u_p, ""
 
 
 def compare_metrics(
@@ -159,7 +170,8 @@ def compare_metrics(
              for k in merged[JOIN].itertuples(index=False, name=None)]
     out = merged.rename(columns={"n_repeats_a": "n_a", "n_repeats_b": "n_b"})
     out["lower_is_better"] = [lower_is_better(m) for m in out["metric"]]
-    test_cols = ["difference", "diff_low", "diff_high", "n_pairs", "t_test", "t_pvalue", "rank_test", "rank_pvalue"]
+    test_cols = ["difference", "diff_low", "diff_high", "n_pairs", "t_test", "t_pvalue", "rank_test", "rank_pvalue",
+                 "test_note"]
     out[test_cols] = pd.DataFrame(tests, columns=test_cols, index=out.index) if tests else pd.DataFrame(columns=test_cols)
     out["paired"] = paired
     mean_a = out["mean_a"].to_numpy(dtype=float)
@@ -234,7 +246,7 @@ def _where(r) -> str:
 
 def _pvalues(r) -> str:
     if not r.t_test:
-        return "too few repetitions for a test"
+        return r.test_note or "too few repetitions for a test"
     n = f"{r.n_pairs} pairs" if r.paired else f"n {r.n_a} vs {r.n_b}"
     return f"{r.t_test} p = {num(r.t_pvalue, 2)}, {r.rank_test} p = {num(r.rank_pvalue, 2)} ({n})"
 

@@ -235,18 +235,18 @@ def wilcoxon(a: object, b: object) -> tuple[float, float]:
 def paired_pvalues(a: object, b: object) -> tuple[float, float, str]:
     """(paired t p, Wilcoxon p, note) for paired repetitions; where no test exists both are nan and the note says why.
 
-    No test: fewer than 2 pairs; identical repetitions on both sides (copies); a
-    difference that is the same non-zero number on every repetition. Differences that
-    are all zero while the values vary keep p = 1 (the methods agree exactly).
+    No test: fewer than 2 pairs; a difference that is the same non-zero number on every
+    repetition (identical repetitions on both sides are the usual cause: copies). All
+    differences zero keep p = 1: the two sides agree exactly, there is nothing to detect.
     """
     x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     nan = float("nan")
     if x.size < 2:
         return nan, nan, f"only {x.size} paired repetition(s); a paired test needs at least 2"
-    if identical(x) and identical(y):
-        return nan, nan, "identical repetitions (each side gave the same value every time): no test"
     with np.errstate(over="ignore", invalid="ignore"):
         d = x - y
     if d[0] != 0.0 and np.all(d == d[0]):
+        if identical(x) and identical(y):
+            return nan, nan, "identical repetitions (each side gave the same value every time): no test"
         return nan, nan, "the difference is the same on every repetition: no test"
     return paired_ttest(x, y)[1], wilcoxon(x, y)[1], ""

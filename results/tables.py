@@ -114,7 +114,7 @@ def summarize(metrics: pd.DataFrame, interval: str = "t", level: float = 0.95, s
             note = (f"{CROSSED_NOTE} ({_bound_text(key[-1])}): the Student-t interval [{low:.4g}, {high:.4g}] is "
                     "replaced by the bootstrap percentile interval")
             _, low, high = bootstrap_interval(v, fallback, level=level)
-            kind = "bootstrap"
+            low, high, kind = min(low, mean), max(high, mean), "bootstrap"  # an interval holds its mean
         d = describe(v)
         rows.append((*key, mean, low, high, d["sd"], d["median"], d["iqr"], len(v), 0, kind, 0, 0, note))
     out = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
@@ -246,8 +246,8 @@ def table_notes(summary: pd.DataFrame, cells: pd.DataFrame) -> list[str]:
                      f"({'; '.join(_bound_text(m) for m in shown)}): mean [bootstrap percentile 95% interval] shown "
                      "instead; the csv's note keeps the t interval")
     if any(IDENTICAL in str(c) for c in text):
-        notes.append(f"{IDENTICAL} identical repetitions: every repetition gave the same value (the same training rows "
-                     "each time, e.g. train_size at least the training pool, and a deterministic method): "
+        notes.append(f"{IDENTICAL} identical repetitions: every repetition gave the same value (e.g. a deterministic "
+                     "method on the same training rows each time, as when train_size is at least the training pool): "
                      "no interval and no paired test")
     if "failed" in cells.columns:
         notes.append("failed: repetitions that failed, left out of every statistic (their reasons: enginebench runs show RUN)")
@@ -381,15 +381,18 @@ def paired_text(tests: pd.DataFrame, metric: str) -> str:
     if tests.empty:
         return ""
     m = int(tests["t_pvalue"].notna().sum())
-    lines = [f"Paired tests on {metric} against the best method of each block (over repetitions); "
-             f"p = unadjusted p-value, Holm = adjusted for the {m} test(s) listed (Holm-Bonferroni):"]
+    holm_text = f"; p = unadjusted p-value, Holm = adjusted for the {m} tests listed (Holm-Bonferroni)" if m > 1 else ""
+    lines = [f"Paired tests on {metric} against the best method of each block (over repetitions){holm_text}:"]
     for r in tests.itertuples():
         where = f"  {r.target}, {r.mode}, window {float(r.window):g} s, {r.split}: {r.method} - {r.versus} = {r.mean_difference:+.4g}"
         note = getattr(r, "note", "")
         if isinstance(note, str) and note:
             lines.append(f"{where}  ({note}; n = {r.n_pairs})")
             continue
-        t_holm, w_holm = getattr(r, "t_pvalue_holm", np.nan), getattr(r, "wilcoxon_pvalue_holm", np.nan)
-        lines.append(f"{where}  (paired t p = {r.t_pvalue:.2g}, Holm {t_holm:.2g}; "
-                     f"Wilcoxon p = {r.wilcoxon_pvalue:.2g}, Holm {w_holm:.2g}; n = {r.n_pairs})")
+        if m > 1:
+            t_holm, w_holm = getattr(r, "t_pvalue_holm", np.nan), getattr(r, "wilcoxon_pvalue_holm", np.nan)
+            lines.append(f"{where}  (paired t p = {r.t_pvalue:.2g}, Holm {t_holm:.2g}; "
+                         f"Wilcoxon p = {r.wilcoxon_pvalue:.2g}, Holm {w_holm:.2g}; n = {r.n_pairs})")
+        else:  # a family of one test: Holm changes nothing
+            lines.append(f"{where}  (paired t p = {r.t_pvalue:.2g}, Wilcoxon p = {r.wilcoxon_pvalue:.2g}, n = {r.n_pairs})")
     return "\n".join(lines) + "\n"

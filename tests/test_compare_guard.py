@@ -124,7 +124,8 @@ def test_welch_interval_against_scipy_and_constant_samples():
     ci = scipy.stats.ttest_ind(b, a, equal_var=False).confidence_interval(0.9)
     d, low, high = welch_interval(a, b, level=0.9)
     assert d == pytest.approx(b.mean() - a.mean()) and (low, high) == pytest.approx((ci.low, ci.high), rel=1e-12)
-    assert welch_interval([1.0, 1.0], [3.0, 3.0]) == (2.0, 2.0, 2.0)
+    d, low, high = welch_interval([1.0, 1.0], [3.0, 3.0])  # copies on both sides: no interval of width 0
+    assert d == 2.0 and np.isnan(low) and np.isnan(high)
     with pytest.raises(DataError, match="at least 2 repetitions per run, got 1 and 2"):
         welch_interval([1.0], [1.0, 2.0])
 
@@ -140,8 +141,8 @@ def _long(values: dict[str, list[float]], metric: str) -> pd.DataFrame:
     ("mae", [2.0, 2.3, 1.8, 2.1], "worse"),     # lower is better, above A's interval
     ("mae", [0.5, 0.7, 0.3, 0.45], "better"),
     ("mae", [1.0, 1.2, 0.8, 1.0], "within"),
-    ("ppmcc", [2.0, 2.4, 1.9, 2.05], "better"),  # higher is better: mirrored
-    ("ppmcc", [0.5, 0.65, 0.4, 0.5], "worse"),
+    ("fit", [2.0, 2.4, 1.9, 2.05], "better"),  # higher is better: mirrored (fit, whose bound 100 is far:
+    ("fit", [0.5, 0.65, 0.4, 0.5], "worse"),    # a PPMCC interval above 1 would be replaced by the bootstrap one)
 ])
 def test_verdict_is_relative_to_the_reference_interval(metric, b_values, verdict):
     a = _long({"m": [1.0, 1.1, 0.9, 1.0]}, metric)
@@ -175,7 +176,7 @@ def test_publish_round_trip(invoke, runs, tmp_path):
     a, path = runs["a"], tmp_path / "a.json"
     out = invoke("publish", a.id, "-o", path)
     assert out.exit_code == 0, out.output
-    assert out.output.startswith(f"wrote {path}: 21 published values of experiment toy-exp")
+    assert out.output.startswith(f"wrote {path}: 35 published values of experiment toy-exp")
     doc = load_baseline(path)
     summary = summarize(a.metrics())
     assert len(doc["entries"]) == len(summary)
@@ -184,7 +185,7 @@ def test_publish_round_trip(invoke, runs, tmp_path):
     got = pd.DataFrame(doc["entries"]).set_index(["method", "metric"]).sort_index()
     want = summary.set_index(["method", "metric"]).sort_index()
     for col in ("mean", "ci_low", "ci_high"):  # exact: JSON keeps every digit of a float
-        assert np.array_equal(got[col].to_numpy(), want[col].to_numpy())
+        assert np.array_equal(got[col].to_numpy(dtype=float), want[col].to_numpy(dtype=float), equal_nan=True)
     assert (got["n_repeats"] == 4).all()
     assert got.loc[("krls", "mae"), "lower_is_better"] and not got.loc[("krls", "ppmcc"), "lower_is_better"]
     assert not got.loc[("krls", "skill_mae"), "lower_is_better"]
@@ -196,7 +197,7 @@ def test_guard_passes_on_the_runs_own_baseline(invoke, runs, tmp_path):
     invoke("publish", runs["a"].id, "-o", path)
     out = invoke("guard", runs["a"].id, "--baseline", path)
     assert out.exit_code == 0, out.output
-    assert out.output.startswith(f"guard passed: run {runs['a'].id} against {path}: all 21 published values")
+    assert out.output.startswith(f"guard passed: run {runs['a'].id} against {path}: all 35 published values")
     assert "warning" not in out.output
 
 
@@ -223,7 +224,7 @@ def test_guard_fails_with_a_readable_table_on_a_perturbed_baseline(invoke, runs,
     out = invoke("guard", runs["a"].id, "--baseline", bad)
     assert out.exit_code == 1, out.output
     lines = out.output.splitlines()
-    assert lines[0].startswith(f"guard FAILED: run {runs['a'].id} against {bad}: 3 of 22 published values fail "
+    assert lines[0].startswith(f"guard FAILED: run {runs['a'].id} against {bad}: 3 of 36 published values fail "
                                "(2 regressed, 1 missing); tolerance 0 (absolute)")
     header = next(i for i, l in enumerate(lines) if l.startswith("status"))
     for col in ("method", "metric", "published mean [interval]", "run mean", "allowed limit", "excess"):
@@ -236,7 +237,7 @@ def test_guard_fails_with_a_readable_table_on_a_perturbed_baseline(invoke, runs,
     assert table[("sindy", "mae")].split()[0] == "missing"
     # an absolute tolerance that covers both regressions leaves only the missing method
     out = invoke("guard", runs["a"].id, "--baseline", bad, "--tolerance", "0.11")
-    assert out.exit_code == 1 and "1 of 22 published values fail (1 missing)" in out.output
+    assert out.exit_code == 1 and "1 of 36 published values fail (1 missing)" in out.output
 
 
 def test_guard_rule_numbers_with_relative_tolerance():
