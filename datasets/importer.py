@@ -89,7 +89,15 @@ from enginebench.datasets.import_spec import (  # noqa: F401 - re-exported: the 
     spec_from_dict,
 )
 from enginebench.datasets.schema import Column, Schema
-from enginebench.datasets.validate import DATETIME, NUMERIC_ROLES, check_columns, check_not_constant, validate_frame
+from enginebench.datasets.validate import (
+    DATETIME,
+    NUMERIC_ROLES,
+    check_columns,
+    check_not_constant,
+    column_hint,
+    show_cell,
+    validate_frame,
+)
 from enginebench.errors import DataError
 
 CSV_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
@@ -359,7 +367,8 @@ def _first_row_only(file: Path, frame: pd.DataFrame, names: list[str], shown: di
         if filled[0] and not filled[1:].any():
             col = shown.get(c, c)
             raise DataError(
-                f"{file}, column {col!r}: holds a value only in its first row ({word} {lines[0]}), like a sampling "
+                f"{file}, column {col!r}: holds a value only in its first row ({show_cell(frame[c].iloc[0])}, "
+                f"{word} {lines[0]}), like a sampling "
                 "rate written once; remove it from [columns] (an undeclared column is dropped with a note)"
             )
 
@@ -448,7 +457,7 @@ def import_spec(spec: ImportSpec) -> Dataset:
     notes: list[str] = []
     plan = _uses(spec)
     n_sources = sum(len(u) for u in plan.values())
-    rate_seen = False
+    headers: list[str] = []
     for file, uses in plan.items():
         table = _read(file, spec, uses)
         for name, rec in table.units.items():
@@ -463,7 +472,7 @@ def import_spec(spec: ImportSpec) -> Dataset:
                     )
                 units[c], unit_from[c] = rec, str(file)
         notes += _side_notes(file, table, uses, spec)
-        rate_seen |= any(c in table.header for c in (spec.rate_column, spec.period_column) if c is not None)
+        headers += [h for h in table.header if h not in headers]
         for use in uses:
             frame, lines, shown = _source_frame(use, table, spec)
             time = use.time(spec)
@@ -504,11 +513,8 @@ def import_spec(spec: ImportSpec) -> Dataset:
             frames.append(out)
     for key in ("rate_column", "period_column"):
         col = getattr(spec, key)
-        if col is not None and not rate_seen:
-            raise DataError(
-                f"{spec.path}: {key} {col!r} is in none of the files; check the name (it is case-sensitive) "
-                f"or remove {key}"
-            )
+        if col is not None and col not in headers:
+            raise DataError(f"{spec.path}: {key} {col!r} is in none of the files; {column_hint(col, headers)}")
     frame = pd.concat(frames, ignore_index=True)
     schema = Schema(tuple(Column(c.name, c.role, units[c.name]) for c in spec.schema.columns))
     if n_sources > 1:

@@ -47,7 +47,7 @@ def _num(x: float) -> str:
     return f"{float(x):.10g}"
 
 
-def _show(v: Any) -> str:
+def show_cell(v: Any) -> str:
     """A cell as the user wrote it: text verbatim, numbers without float noise."""
     if isinstance(v, str):
         return v
@@ -74,7 +74,8 @@ def _first(mask: np.ndarray, lines: np.ndarray) -> int:
 
 
 # -- columns ------------------------------------------------------------------------------
-def _column_hint(name: str, header: Sequence[str]) -> str:
+def column_hint(name: str, header: Sequence[str]) -> str:
+    """Why ``name`` may be missing from ``header``: a unit in a header name, case, a near miss, else the columns."""
     for h in header:
         m = _UNIT_IN_NAME.match(str(h))
         if m and m.group(1) == name:
@@ -122,7 +123,7 @@ def check_columns(
                     f"{source}: {what} is not in the header read with delimiter {delimiter!r}{more}; "
                     f"the header contains {cand!r}: set delimiter = {json.dumps(cand)} in the spec"
                 )
-    raise DataError(f"{source}: {what} is not in the file{more}; {_column_hint(first, header)}")
+    raise DataError(f"{source}: {what} is not in the file{more}; {column_hint(first, header)}")
 
 
 # -- values -------------------------------------------------------------------------------
@@ -139,7 +140,7 @@ def parse_numbers(
         comma = isinstance(raw, str) and _DECIMAL_COMMA.match(raw)
         hint = " (a decimal comma? write decimals with '.')" if comma else ""
         raise DataError(
-            f"{source}, column {column!r}, {word} {lines[i]}: {_show(raw)!r} is not a number{hint}; "
+            f"{source}, column {column!r}, {word} {lines[i]}: {show_cell(raw)!r} is not a number{hint}; "
             "fix or remove the value"
         )
     return x
@@ -160,7 +161,7 @@ def _require_finite(
     if inf.any():
         i = _first(inf, lines)
         raise DataError(
-            f"{source}, column {column!r}, {word} {lines[i]}: {_show(raw.iloc[i])!r} is infinite "
+            f"{source}, column {column!r}, {word} {lines[i]}: {show_cell(raw.iloc[i])!r} is infinite "
             "(outside the float64 range); fix the value"
         )
 
@@ -236,7 +237,7 @@ def parse_time(
     else:
         if pd.api.types.is_numeric_dtype(raw.dtype):
             raise DataError(
-                f"{source}, column {column!r}, {word} {lines[0]}: {_show(raw.iloc[0])!r} is a number but "
+                f"{source}, column {column!r}, {word} {lines[0]}: {show_cell(raw.iloc[0])!r} is a number but "
                 'time_unit = "datetime" expects ISO 8601 stamps; set time_unit to s, ms, min or h'
             )
         text = raw.astype(str)
@@ -379,7 +380,7 @@ def validate_frame(
     d = np.diff(ts)
 
     def stamp(i: int) -> str:
-        return _show(frame[time_col].iloc[order[i]]) if time_col is not None else str(ts[i])
+        return show_cell(frame[time_col].iloc[order[i]]) if time_col is not None else str(ts[i])
 
     bad = same & (d <= 0)
     if bad.any():

@@ -124,6 +124,51 @@ CASES: dict[str, tuple[type[EngineBenchError], str]] = {
         "{dir}/data.csv, column 't', line 4: 'yesterday' is not an ISO 8601 time stamp; "
         "fix it (e.g. 2024-05-01T12:00:00+00:00)",
     ),
+    # keys of published records (no time column, [records.NAME] tables, record column, rate columns)
+    "records_unknown_column": (
+        SpecError,
+        "{dir}/spec.toml: [records.est] columns: 'uu' is not declared in [columns]; did you mean 'u'? the keys are "
+        "the spec's column names ('u', 'y'), the values the file's columns",
+    ),
+    "records_file_not_found": (
+        DataError,
+        "{dir}/bench.csv: file not found (named in [records.est] of {dir}/spec.toml; paths are relative to the spec)",
+    ),
+    "records_missing_file_column": (
+        DataError,
+        "{dir}/data.csv: [records.val] column 'uval' is not in the file; did you mean 'uVal'? (names are "
+        "case-sensitive)",
+    ),
+    "no_time_no_dt": (
+        SpecError,
+        '{dir}/spec.toml: no time column and no dt; give dt = the sample period in seconds (without time = "COL", '
+        "time is the sample index x dt, from 0 in each record)",
+    ),
+    "fs_disagrees_with_dt": (
+        DataError,
+        "{dir}/data.csv, column 'Fs', line 2: 400 Hz (a sampling rate: dt = 0.0025 s) disagrees with dt = 0.025 s "
+        "in the spec; fix dt (or the value in the file)",
+    ),
+    "record_starts_again": (
+        DataError,
+        "{dir}/data.csv, column 'run', line 6: record 'A' starts again after other records (it began on line 2); "
+        'give each record its own name, or use segment = "run" to group rows by value',
+    ),
+    "gap_tolerance_without_time": (
+        SpecError,
+        "{dir}/spec.toml: gap_tolerance applies to a time column but the spec has no time key; remove gap_tolerance "
+        '(time is the sample index x dt) or name the column with time = "COL"',
+    ),
+    "first_row_only_declared": (
+        DataError,
+        "{dir}/data.csv, column 'Fs': holds a value only in its first row (100, line 2), like a sampling rate "
+        "written once; remove it from [columns] (an undeclared column is dropped with a note)",
+    ),
+    "rate_column_absent": (
+        DataError,
+        "{dir}/spec.toml: rate_column 'Samplerate' is in none of the files; did you mean 'SampleRate'? "
+        "(names are case-sensitive)",
+    ),
 }
 VALID_CASES = ("gap_split", "short_segment_dropped")
 

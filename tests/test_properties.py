@@ -263,7 +263,7 @@ def test_arbitrary_spec_documents_load_or_fail_with_one_line(doc):
         else:
             event("loaded")
             assert isinstance(spec, ImportSpec)
-            assert spec.name == doc["name"] and spec.time == doc["time"] and spec.dt == float(doc["dt"])
+            assert spec.name == doc["name"] and spec.time == doc.get("time") and spec.dt == float(doc["dt"])
             assert spec.files == tuple(path.parent / f for f in doc["files"])
             assert spec.gap_tolerance == float(doc.get("gap_tolerance", 1.5 * spec.dt)) >= spec.dt
             roles = {k: (v if isinstance(v, str) else v["role"]) for k, v in doc["columns"].items()}
