@@ -1,12 +1,35 @@
 """``nfir``: nonlinear finite impulse response, KRLS on lagged run-time inputs only (seed 003, eq. 11).
 
 y(t) ~ f(u(t), u(t - s dt), u(t - 2 s dt), ..., u(t - h)) with the stride ``s`` (samples)
-and the horizon ``h`` (seconds) as hyperparameters, f a Gaussian-kernel regularised
-least-squares model (``methods/krls.py``). The features are built here from each
-segment's raw inputs ``U`` and never from outputs, so the model is BIBO-stable by
-construction: bounded inputs give bounded predictions, and there is nothing to diverge.
-Rows near a segment's start, whose window reaches before the first sample, repeat that
-first sample (edge padding), so every row of a trajectory gets a prediction.
+and the horizon ``h`` as hyperparameters, f a Gaussian-kernel regularised least-squares
+model (``methods/krls.py``). The features are built here from each segment's raw inputs
+``U`` and never from outputs, so the model is BIBO-stable by construction: bounded inputs
+give bounded predictions, and there is nothing to diverge. Rows near a segment's start,
+whose window reaches before the first sample, repeat that first sample (edge padding), so
+every row of a trajectory gets a prediction.
+
+Horizons derived from the data (the default, ``horizons = None``). Records arrive sampled
+anywhere from 1 ms to 10 s, so no horizon in seconds suits them all. Instead the memory of
+the input -> output relation is measured in samples on the training data
+(:func:`estimate_memory`): on a ladder of horizons 0, 1, 2, 4, ... samples, capped at a
+quarter of the median training record, a ridge regression of the output(s) on the
+features NFIR itself would see (each input at the ladder's lags, at most ``max_lags``
+lags, plus their squares) is scored by blocked two-fold cross-validation. The memory M is
+the shortest horizon that reaches 95 % of the error reduction the best horizon achieves
+over lag 0 alone (0 when longer windows cut lag 0's error by less than 5 %); for a
+first-order lag of time constant tau, M is about 1.5 tau. The horizon grid is then M/2,
+M, 2M samples (M taken as at least 1) plus the ladder's best horizon when it lies beyond
+2M, all capped as above, each searched with the stride that keeps at most ``max_lags``
+lags per input:
+``stride = ceil(h / (max_lags - 1))``. ``describe`` reports the ladder's errors, M, the
+grid and a warning when M reached the cap (the record may be shorter than the system's
+memory) or when no horizon explains the output (NFIR may not beat the mean).
+
+Explicit grids keep their old meaning: ``horizons`` in seconds, ``strides`` in samples
+(searched as a product); with ``horizons`` given and ``strides = None`` each horizon gets
+the stride above. The hyperparameters are always ``horizon`` (seconds, a whole number of
+samples when derived) and, optionally, ``stride`` (samples; derived from the horizon and
+``max_lags`` when absent).
 
 Gamma is relative to the feature count d: the kernel is exp(-(gamma / d) |x - x'|^2) on
 standardised features, so one gamma grid suits every (horizon, stride) pair. The kernel
@@ -17,7 +40,7 @@ are computed in chunks of rows so that a long evaluation set never forms a huge 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -30,6 +53,16 @@ from enginebench.methods.krls import KRLS, KRLSFitted
 
 PREDICT_CHUNK = 8192
 """Evaluation rows per kernel block (8192 x 1000 doubles = 66 MB)."""
+MEMORY_ROWS = 20_000
+"""Training rows (evenly spaced) used by the memory estimate: enough for a few hundred ridge features."""
+MEMORY_BLOCKS = 10
+"""Contiguous row blocks of the memory estimate's two-fold cross-validation (even vs odd blocks)."""
+MEMORY_SHARE = 0.95
+"""The memory is the shortest horizon reaching this share of the best horizon's error reduction over lag 0."""
+MEMORY_MIN_GAIN = 0.05
+"""Below this relative error reduction over lag 0, longer windows are not worth their features: the memory is 0."""
+RECORD_FRACTION = 4
+"""Horizons are capped at the median training record length divided by this."""
 
 
 def nfir_lags(horizon: float, stride: int, dt: float) -> np.ndarray:
@@ -42,19 +75,142 @@ def nfir_lags(horizon: float, stride: int, dt: float) -> np.ndarray:
     return np.arange(0, span + 1, int(stride), dtype=np.int64)
 
 
+def horizon_samples(horizon: float, dt: float) -> int:
+    """A horizon in seconds as a whole number of samples (rounded down, as ``nfir_lags`` does)."""
+    return int(math.floor(float(horizon) / dt + 1e-9))
+
+
+def bounded_stride(span: int, max_lags: int) -> int:
+    """The smallest stride that covers ``span`` samples with at most ``max_lags`` lags (lag 0 included)."""
+    return max(1, math.ceil(int(span) / (int(max_lags) - 1)))
+
+
 def lag_feature_names(inputs: Sequence[str], lags: np.ndarray) -> tuple[str, ...]:
     """``u[t]``, ``u[t-6]``, ... per input, inputs outermost (the order of ``lagged_inputs``)."""
     return tuple(f"{c}[t]" if k == 0 else f"{c}[t-{int(k)}]" for c in inputs for k in lags)
 
 
-def lagged_inputs(U: np.ndarray, lags: np.ndarray) -> np.ndarray:
-    """(N, c) raw inputs -> (N, c * len(lags)): column j*len(lags)+i is input j at lag lags[i].
+def lagged_inputs(U: np.ndarray, lags: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """(N, c) raw inputs -> (len(rows), c * len(lags)): column j*len(lags)+i is input j at lag lags[i].
 
-    A lag reaching before the first row takes the first row (edge padding).
+    ``rows`` (default: every row) are the positions whose windows are built. A lag
+    reaching before the first row takes the first row (edge padding).
     """
     U = np.asarray(U, dtype=np.float64)
-    idx = np.maximum(np.arange(len(U))[:, None] - np.asarray(lags)[None, :], 0)  # (N, L)
-    return np.ascontiguousarray(np.swapaxes(U[idx], 1, 2).reshape(len(U), -1))
+    at = np.arange(len(U)) if rows is None else np.asarray(rows, dtype=np.int64)
+    idx = np.maximum(at[:, None] - np.asarray(lags)[None, :], 0)  # (N, L)
+    return np.ascontiguousarray(np.swapaxes(U[idx], 1, 2).reshape(len(at), -1))
+
+
+# -- memory estimate ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MemoryEstimate:
+    """How far back the inputs explain the output, in samples, and the horizon grid derived from it."""
+
+    samples: int
+    """The estimated memory M (samples)."""
+    cap: int
+    """The longest horizon considered: the median training record over ``RECORD_FRACTION``."""
+    ladder: tuple[int, ...]
+    errors: tuple[float, ...]
+    """Cross-validated error of the ridge FIR at each ladder horizon, relative to the output's variance."""
+    grid: tuple[int, ...]
+    """The horizons searched (samples)."""
+    max_lags: int
+    rows: int
+    """Training rows the estimate used."""
+
+    def warnings(self) -> list[str]:
+        out = []
+        if self.samples >= self.cap and len(self.ladder) > 1:
+            out.append(f"the input->output memory estimate reached its cap of {self.cap} samples (a quarter of the "
+                       "median training record): the records may be shorter than the system's memory, or the output "
+                       "drifts; NFIR cannot look further back; give longer records or horizons explicitly")
+        if min(self.errors) > 0.9:
+            out.append(f"no horizon of lagged inputs explains the output well (best cross-validated error "
+                       f"{min(self.errors):.2f} of its variance, linear and quadratic terms): NFIR may not beat "
+                       "the training mean")
+        return out
+
+    def describe(self, dt: float) -> dict[str, Any]:
+        return {
+            "rule": f"memory M = shortest horizon reaching {MEMORY_SHARE:.0%} of the best error reduction over lag 0 "
+                    "(ridge FIR of lagged inputs and their squares, blocked 2-fold CV); grid M/2, M, 2M samples and the "
+                    f"ladder's best, capped at the median record / {RECORD_FRACTION}; stride = ceil(h / (max_lags - 1))",
+            "memory_samples": self.samples,
+            "memory_s": self.samples * dt,
+            "cap_samples": self.cap,
+            "ladder_samples": list(self.ladder),
+            "ladder_errors": [round(e, 6) for e in self.errors],
+            "grid_samples": list(self.grid),
+            "max_lags": self.max_lags,
+            "rows": self.rows,
+        }
+
+
+def memory_ladder(cap: int) -> np.ndarray:
+    """Horizons 0, 1, 2, 4, ... samples up to ``cap`` (``cap`` itself included)."""
+    steps = [0] + [2 ** k for k in range(int(cap).bit_length()) if 2 ** k <= cap]
+    return np.unique(np.r_[steps, int(cap)]).astype(np.int64)
+
+
+def _ridge_cv_error(X: np.ndarray, y: np.ndarray, folds: np.ndarray) -> float:
+    """Two-fold CV error of a lightly regularised linear fit, summed over targets, over the total variance."""
+    resid = 0.0
+    for k in (0, 1):
+        a, b = folds != k, folds == k
+        xm, ym = X[a].mean(axis=0), y[a].mean(axis=0)
+        Xa, Xb = X[a] - xm, X[b] - xm
+        G = Xa.T @ Xa
+        lam = 1e-6 * float(np.trace(G)) / max(1, G.shape[0]) + 1e-12
+        w = np.linalg.solve(G + lam * np.eye(G.shape[0]), Xa.T @ (y[a] - ym))
+        resid += float(np.sum((y[b] - ym - Xb @ w) ** 2))
+    return resid / float(np.sum((y - y.mean(axis=0)) ** 2))
+
+
+def estimate_memory(
+    U: Sequence[np.ndarray], rows: Sequence[np.ndarray], y: Sequence[np.ndarray], max_lags: int,
+    max_rows: int = MEMORY_ROWS,
+) -> MemoryEstimate:
+    """The input -> output memory in samples and the horizon grid around it (see the module docstring).
+
+    ``U[i]`` are segment i's raw inputs (n_i, c), ``rows[i]`` the rows where its outputs
+    ``y[i]`` (len(rows[i]), k) are measured. Deterministic: rows are thinned evenly.
+    """
+    lengths = np.array([len(u) for u in U], dtype=np.int64)
+    cap = max(1, int(np.median(lengths)) // RECORD_FRACTION)
+    Y = np.vstack([np.asarray(v, dtype=np.float64).reshape(len(r), -1) for v, r in zip(y, rows)])
+    seg_of = np.concatenate([np.full(len(r), i) for i, r in enumerate(rows)])
+    at = np.concatenate([np.asarray(r, dtype=np.int64) for r in rows])
+    keep = np.arange(0, len(at), max(1, math.ceil(len(at) / max_rows)))
+    Y, seg_of, at = Y[keep], seg_of[keep], at[keep]
+    allU = np.vstack(U)
+    mean, std = allU.mean(axis=0), allU.std(axis=0)
+    std = np.where(std > 0, std, 1.0)
+    Us = [(np.asarray(u, dtype=np.float64) - mean) / std for u in U]
+    folds = (np.arange(len(at)) * MEMORY_BLOCKS // max(1, len(at))) % 2
+    ladder = memory_ladder(cap)
+    if len(at) < 4 or np.ptp(folds) == 0 or not np.any(np.ptp(Y, axis=0) > 0):
+        errors = np.ones(len(ladder))
+    else:
+        errors = np.empty(len(ladder))
+        for j, h in enumerate(ladder):
+            lags = np.arange(0, h + 1, bounded_stride(h, max_lags))
+            X = np.empty((len(at), Us[0].shape[1] * len(lags)))
+            for i in np.unique(seg_of):
+                sel = seg_of == i
+                X[sel] = lagged_inputs(Us[i], lags, at[sel])
+            errors[j] = _ridge_cv_error(np.hstack([X, X ** 2]), Y, folds)
+    e0, best = float(errors[0]), float(errors.min())
+    if e0 - best <= MEMORY_MIN_GAIN * e0:
+        memory = 0
+    else:
+        memory = int(ladder[np.flatnonzero(errors <= best + (1 - MEMORY_SHARE) * (e0 - best))[0]])
+    centre = max(memory, 1)
+    lowest = int(ladder[int(np.argmin(errors))]) if memory else centre  # the FIR's own best horizon
+    grid = tuple(int(h) for h in np.unique(np.clip([centre // 2, centre, 2 * centre, lowest], 0, cap)))
+    return MemoryEstimate(samples=memory, cap=cap, ladder=tuple(int(h) for h in ladder),
+                          errors=tuple(float(e) for e in errors), grid=grid, max_lags=int(max_lags), rows=len(at))
 
 
 @dataclass(frozen=True)
@@ -69,6 +225,17 @@ class NFIRFitted:
     gamma: float
     """The relative gamma searched; the kernel uses ``krls.gamma = gamma / d``."""
     n_rows: int
+    dt: float = float("nan")
+    memory: MemoryEstimate | None = field(default=None)
+    """The memory estimate on the fitting data when the horizons were derived (``horizons = None``)."""
+
+
+def _check_list(key: str, value: Any) -> None:
+    if value is None:
+        return
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or not len(value):
+        raise MethodError(f"method 'nfir': option {key} must be a non-empty list or None (derive from the data), "
+                          f"got {value!r}")
 
 
 class NFIR(KRLS):
@@ -77,7 +244,7 @@ class NFIR(KRLS):
     name = "nfir"
     family = "data-driven"
     modes = frozenset({"simulation", "static"})
-    summary = "nonlinear FIR: KRLS on lagged inputs only (BIBO-stable); horizon and stride searched (seed 003)"
+    summary = "nonlinear FIR: KRLS on lagged inputs only (BIBO-stable); horizons derived from the data's memory (samples)"
 
     @classmethod
     def default_options(cls) -> dict[str, Any]:
@@ -85,8 +252,9 @@ class NFIR(KRLS):
             **KRLS.default_options(),
             "gamma_grid": (-5, -1, 5),  # relative to the feature count: gamma / d
             "lambda_grid": (-8, 0, 9),
-            "horizons": (2.0, 4.0, 8.0),  # seconds
-            "strides": (6, 12),  # samples
+            "horizons": None,  # seconds; None = derived from the data's input->output memory (samples)
+            "strides": None,  # samples; None = the stride keeping at most max_lags lags per input
+            "max_lags": 16,  # lags per input (lag 0 included) when the stride is derived
             "max_rows": 1000,  # training rows for the kernel (0 = all; FALKON above exact_max_rows)
             "inputs": None,  # run-time input names to lag; None = all
         }
@@ -95,24 +263,51 @@ class NFIR(KRLS):
         super().__init__(**options)
         o = self.options
         for key in ("horizons", "strides"):
-            if isinstance(o[key], (str, bytes)) or not isinstance(o[key], Sequence) or not len(o[key]):
-                raise MethodError(f"method 'nfir': option {key} must be a non-empty list, got {o[key]!r}")
-        for h in o["horizons"]:
+            _check_list(key, o[key])
+        for h in o["horizons"] or ():
             nfir_lags(h, 1, 1.0)
-        for s in o["strides"]:
+        for s in o["strides"] or ():
             nfir_lags(0.0, s, 1.0)
+        m = o["max_lags"]
+        if isinstance(m, bool) or not (isinstance(m, (int, np.integer)) and m >= 2):
+            raise MethodError(f"method 'nfir': option max_lags must be a whole number >= 2 (lags per input, lag 0 "
+                              f"included), got {m!r}")
         if not (isinstance(o["max_rows"], (int, np.integer)) and o["max_rows"] >= 0):
             raise MethodError(f"method 'nfir': option max_rows must be an integer >= 0 (0 = all rows), got {o['max_rows']!r}")
         if o["inputs"] is not None and (isinstance(o["inputs"], str) or not all(isinstance(c, str) for c in o["inputs"])):
             raise MethodError(f"method 'nfir': option inputs must be a list of input column names or None, got {o['inputs']!r}")
+        self._memory_cache: tuple[tuple, MemoryEstimate] | None = None
+
+    # -- horizons from the data -------------------------------------------------------------
+    def memory(self, data: Samples) -> MemoryEstimate:
+        """The input -> output memory of ``data`` (training samples with targets); cached for the same data."""
+        names, cols = self._columns(data)
+        self._check_inputs(data, names, cols)
+        if not data.has_targets:
+            raise MethodError("method 'nfir': deriving the horizons needs training samples with targets")
+        key = (float(data.dt), tuple(cols), int(self.options["max_lags"]),
+               tuple((s.id, len(s.U), len(s.rows), int(s.rows[0]) if len(s.rows) else -1) for s in data.segments),
+               float(np.sum(data.y)))
+        cache = getattr(self, "_memory_cache", None)
+        if cache is not None and cache[0] == key:
+            return cache[1]
+        est = estimate_memory([s.U[:, cols] for s in data.segments], [s.rows for s in data.segments],
+                              [s.y for s in data.segments], int(self.options["max_lags"]))
+        self._memory_cache = (key, est)
+        return est
 
     def search_space(self, data: Samples) -> SearchSpace:
+        """Horizons (s) and strides as given, else derived (see the module docstring); then gamma, lambda."""
         space = super().search_space(data)
-        return {
-            "horizon": np.array([float(h) for h in self.options["horizons"]]),
-            "stride": np.array([int(s) for s in self.options["strides"]]),
-            **space,
-        }
+        o = self.options
+        if o["horizons"] is None:
+            horizons = np.array([h * data.dt for h in self.memory(data).grid])
+        else:
+            horizons = np.array([float(h) for h in o["horizons"]])
+        out: SearchSpace = {"horizon": horizons}
+        if o["strides"] is not None:
+            out["stride"] = np.array([int(s) for s in o["strides"]])
+        return {**out, **space}
 
     # -- features -------------------------------------------------------------------------
     def _columns(self, data: Samples) -> tuple[tuple[str, ...], list[int]]:
@@ -127,16 +322,20 @@ class NFIR(KRLS):
             raise MethodError("method 'nfir': no input to lag; the data have no run-time input columns")
         return names, [data.input_names.index(c) for c in names]
 
-    def lagged(self, data: Samples, lags: np.ndarray, columns: list[int] | None = None) -> Samples:
-        """``data`` with X replaced by the lagged inputs at each segment's evaluated rows."""
-        names, cols = self._columns(data) if columns is None else (tuple(data.input_names[c] for c in columns), columns)
+    @staticmethod
+    def _check_inputs(data: Samples, names: Sequence[str], cols: list[int]) -> None:
         for s in data.segments:
             if not np.isfinite(s.U[:, cols]).all():
                 row, col = np.argwhere(~np.isfinite(s.U[:, cols]))[0]
                 raise MethodError(
                     f"method 'nfir': segment {s.id!r} has nan/inf in input {names[col]!r} at row {row}; clean or drop it"
                 )
-        segs = tuple(replace(s, X=lagged_inputs(s.U[:, cols], lags)[s.rows]) for s in data.segments)
+
+    def lagged(self, data: Samples, lags: np.ndarray, columns: list[int] | None = None) -> Samples:
+        """``data`` with X replaced by the lagged inputs at each segment's evaluated rows."""
+        names, cols = self._columns(data) if columns is None else (tuple(data.input_names[c] for c in columns), columns)
+        self._check_inputs(data, names, cols)
+        segs = tuple(replace(s, X=lagged_inputs(s.U[:, cols], lags, s.rows)) for s in data.segments)
         return replace(data, segments=segs, feature_names=lag_feature_names(names, lags))
 
     def _kernel_rows(self, train: Samples, rng: np.random.Generator) -> np.ndarray:
@@ -146,21 +345,24 @@ class NFIR(KRLS):
             return np.arange(n)
         return np.sort(rng.choice(n, size=m, replace=False))
 
-    @staticmethod
-    def _params(params: Params, dt: float) -> tuple[np.ndarray, float, int, float, float]:
-        missing = [k for k in ("horizon", "stride", "gamma", "lambda") if k not in params]
+    def _params(self, params: Params, dt: float) -> tuple[np.ndarray, float, int, float, float]:
+        missing = [k for k in ("horizon", "gamma", "lambda") if k not in params]
         if missing:
             raise MethodError(
                 f"method 'nfir': hyperparameter(s) {', '.join(missing)} missing from {dict(params)!r}; "
-                "give horizon (s), stride (samples), gamma and lambda"
+                "give horizon (s), gamma and lambda (and optionally stride, samples)"
             )
         unknown = sorted(set(params) - {"horizon", "stride", "gamma", "lambda"})
         if unknown:
             raise MethodError(f"method 'nfir': unknown hyperparameter(s) {', '.join(unknown)}; it has horizon, stride, gamma, lambda")
-        lags = nfir_lags(float(params["horizon"]), params["stride"], dt)
+        horizon = float(params["horizon"])
+        nfir_lags(horizon, 1, dt)  # checks the horizon
+        stride = params["stride"] if "stride" in params else bounded_stride(horizon_samples(horizon, dt),
+                                                                              self.options["max_lags"])
+        lags = nfir_lags(horizon, stride, dt)
         gamma = float(check_positive(params["gamma"], "gamma")[0])
         lam = float(check_positive(params["lambda"], "lambda")[0])
-        return lags, float(params["horizon"]), int(params["stride"]), gamma, lam
+        return lags, horizon, int(stride), gamma, lam
 
     # -- Method ---------------------------------------------------------------------------
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> NFIRFitted:
@@ -171,7 +373,9 @@ class NFIR(KRLS):
         sub = lagged.take(self._kernel_rows(lagged, rng))
         d = len(lagged.feature_names)
         krls = KRLS.fit(self, sub, {"gamma": gamma / d, "lambda": lam}, rng)
-        return NFIRFitted(krls=krls, inputs=names, lags=lags, horizon=horizon, stride=stride, gamma=gamma, n_rows=len(sub))
+        memory = self.memory(train) if self.options["horizons"] is None else None
+        return NFIRFitted(krls=krls, inputs=names, lags=lags, horizon=horizon, stride=stride, gamma=gamma,
+                          n_rows=len(sub), dt=float(train.dt), memory=memory)
 
     def predict(self, fitted: NFIRFitted, data: Samples) -> list[np.ndarray]:
         self.check_mode(data.mode)
@@ -188,8 +392,10 @@ class NFIR(KRLS):
         return SegmentPredictions(parts) if data.mode == "simulation" else parts
 
     def describe(self, fitted: NFIRFitted) -> dict[str, Any]:
-        return {
+        """Lags, kernel settings and, when the horizons were derived, the memory estimate behind them."""
+        out: dict[str, Any] = {
             "horizon_s": fitted.horizon,
+            "horizon_samples": horizon_samples(fitted.horizon, fitted.dt) if np.isfinite(fitted.dt) else None,
             "stride_samples": fitted.stride,
             "lags_samples": [int(x) for x in fitted.lags],
             "inputs": list(fitted.inputs),
@@ -201,6 +407,12 @@ class NFIR(KRLS):
             "kernel_rows": fitted.n_rows,
             "bibo_stable": True,
         }
+        memory = getattr(fitted, "memory", None)
+        if memory is not None:
+            out["horizons_derived"] = memory.describe(fitted.dt)
+            if memory.warnings():
+                out["warnings"] = memory.warnings()
+        return out
 
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator

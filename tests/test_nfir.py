@@ -15,7 +15,9 @@ from enginebench.datasets.samples import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.methods.base import SegmentPredictions, grid_points
-from enginebench.methods.nfir import NFIR, lag_feature_names, lagged_inputs, nfir_lags
+from enginebench.methods.nfir import (
+    NFIR, bounded_stride, estimate_memory, lag_feature_names, lagged_inputs, memory_ladder, nfir_lags,
+)
 
 DT = 0.5
 
@@ -61,6 +63,14 @@ def test_lags_reach_the_horizon_in_strides():
 def test_bad_lags_are_refused(horizon, stride, fragment):
     with pytest.raises(MethodError, match=fragment):
         nfir_lags(horizon, stride, 0.5)
+
+
+def test_a_missing_stride_keeps_the_lag_count_bounded(data):
+    train, _ = data
+    assert [bounded_stride(h, 16) for h in (0, 1, 15, 16, 30, 31, 1000)] == [1, 1, 1, 2, 2, 3, 67]
+    fitted = NFIR(max_lags=4).fit(train, {"horizon": 4.5, "gamma": 0.5, "lambda": 1e-2}, np.random.default_rng(0))
+    assert fitted.lags.tolist() == [0, 3, 6, 9] and fitted.stride == 3  # 9 samples of 0.5 s in at most 4 lags
+    assert NFIR(max_lags=4).describe(fitted)["horizon_samples"] == 9
 
 
 def test_lagged_inputs_pad_with_the_first_row():
@@ -194,8 +204,12 @@ def test_window_mode_and_bad_options_are_refused(data):
         NFIR(max_rows=-1)
     with pytest.raises(MethodError, match="option inputs names nope, which are not run-time inputs"):
         NFIR(inputs=["nope"]).fit(train, PARAMS, np.random.default_rng(0))
-    with pytest.raises(MethodError, match=r"hyperparameter\(s\) stride missing"):
-        NFIR().fit(train, {"horizon": 1.0, "gamma": 1.0, "lambda": 1.0}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match=r"hyperparameter\(s\) horizon missing"):
+        NFIR().fit(train, {"stride": 1, "gamma": 1.0, "lambda": 1.0}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="option max_lags must be a whole number >= 2"):
+        NFIR(max_lags=1)
+    with pytest.raises(MethodError, match=r"option strides must be a non-empty list or None \(derive"):
+        NFIR(strides=6)
     with pytest.raises(MethodError, match="hyperparameter 'lambda' must be a positive finite number"):
         NFIR().fit(train, {**PARAMS, "lambda": 0.0}, np.random.default_rng(0))
 
@@ -208,3 +222,113 @@ def test_nan_input_is_named(data):
     bad = replace(train, segments=(train.segments[0], replace(seg, U=U, X=U[seg.rows])))
     with pytest.raises(MethodError, match=r"segment 's1' has nan/inf in input 'u2' at row 7"):
         NFIR().fit(bad, PARAMS, np.random.default_rng(0))
+
+
+# -- horizons derived from the data --------------------------------------------------------------
+def lowpass(x: np.ndarray, tau: float) -> np.ndarray:
+    """First-order discrete low-pass with a time constant of ``tau`` samples and unit gain."""
+    from scipy.signal import lfilter
+
+    a = np.exp(-1.0 / tau)
+    return lfilter([1 - a], [1, -a], x, axis=0)
+
+
+def first_order_dataset(tau: float, dt: float, n_seg: int = 4, n: int = 400, seed: int = 0) -> Dataset:
+    """y = a first-order lag (tau samples) of a smooth input u plus 0.3 u^2: memory ~ 3 tau samples."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for s in range(n_seg):
+        u = lowpass(rng.normal(0, 3.0, n), 5.0)
+        y = lowpass(u + 0.3 * u ** 2, tau) + rng.normal(0, 0.01, n)
+        frames.append(pd.DataFrame({"segment": f"s{s}", "time": np.arange(n) * dt, "u": u, "y": y + 20.0}))
+    return Dataset("lag", pd.concat(frames, ignore_index=True), Schema.from_roles({"u": "input", "y": "output"}), dt)
+
+
+def test_memory_ladder_and_the_estimate_on_known_first_order_systems():
+    assert memory_ladder(1).tolist() == [0, 1] and memory_ladder(20).tolist() == [0, 1, 2, 4, 8, 16, 20]
+    rng = np.random.default_rng(1)
+    u = lowpass(rng.normal(size=(20000, 1)), 20.0)
+    for tau in (3.0, 10.0, 40.0):
+        est = estimate_memory([u], [np.arange(20000)], [lowpass(u, tau)], 16)
+        assert est.grid[0] <= 3 * tau <= est.grid[-1], (tau, est)  # the grid brackets the 95 % settling time
+        assert len(est.grid) == 3 and est.cap == 5000 and not est.warnings()
+    # a static map of a slowly wandering input has no memory, however long the input's own correlation
+    w = np.cumsum(rng.normal(size=(5000, 1)), axis=0)
+    est = estimate_memory([w], [np.arange(5000)], [np.tanh(w / 20)], 16)
+    assert est.samples == 0 and est.grid == (0, 1, 2)
+
+
+def test_derived_horizons_are_the_same_samples_at_1_ms_and_10_s():
+    """Only the data's samples matter: the grid in samples, the lags and the predictions are identical."""
+    preds, grids = [], []
+    for dt in (1e-3, 10.0):
+        sim = make_samples(first_order_dataset(6.0, dt), ["y"], "simulation")
+        m = NFIR(max_rows=200)
+        space = m.search_space(sim)
+        grids.append(np.round(space["horizon"] / dt).astype(int).tolist())
+        params = {"horizon": space["horizon"][1], "gamma": 0.1, "lambda": 1e-3}
+        fitted = m.fit(sim, params, np.random.default_rng(0))
+        preds.append(np.concatenate(m.predict(fitted, sim.without_targets())))
+        d = m.describe(fitted)
+        assert d["horizons_derived"]["grid_samples"] == grids[-1] and d["horizon_samples"] == grids[-1][1]
+        assert d["horizons_derived"]["memory_s"] == pytest.approx(d["horizons_derived"]["memory_samples"] * dt)
+        assert "stride" not in space and len(d["lags_samples"]) <= 16
+    # a first-order lag's squared error left after h samples falls to 5 % near h = 1.5 tau = 9
+    assert grids[0] == grids[1] and grids[0][0] <= 9 <= grids[0][-1]
+    np.testing.assert_allclose(preds[0], preds[1], rtol=1e-10)
+
+
+def _selected_test_rmse(m: NFIR, train, val, test) -> float:
+    grid = grid_points(m.search_space(train))
+    out = m.predict_grid(train, val.without_targets(), grid, np.random.default_rng(0))
+    best = grid[int(np.argmin(np.mean((out - val.y[None]) ** 2, axis=(1, 2))))]
+    fitted = m.fit(train, best, np.random.default_rng(0))
+    return float(np.sqrt(np.mean((np.concatenate(m.predict(fitted, test.without_targets())) - test.y) ** 2)))
+
+
+def test_a_record_sampled_every_few_seconds_keeps_its_memory():
+    """The reported failure: at dt = 5 s seed 003's horizons (2-8 s) are one sample, so NFIR was a static map and no
+    better than the training mean. The derived horizons see the system's 30-sample memory."""
+    sim = make_samples(first_order_dataset(10.0, 5.0, n_seg=5, n=300), ["y"], "simulation")
+    edges = np.cumsum([len(s) for s in sim.segments])
+    train, val, test = (sim.take(np.arange(a, b)) for a, b in ((0, edges[2]), (edges[2], edges[3]), (edges[3], edges[4])))
+    small = {"gamma_grid": (-3, -1, 3), "lambda_grid": (-6, -2, 3), "max_rows": 400}
+    old = NFIR(horizons=[2.0, 4.0, 8.0], strides=[6, 12], **small)
+    assert {tuple(nfir_lags(h, s, 5.0)) for h in (2.0, 4.0, 8.0) for s in (6, 12)} == {(0,)}  # static
+    derived = _selected_test_rmse(NFIR(**small), train, val, test)
+    static = _selected_test_rmse(old, train, val, test)
+    mean = float(np.sqrt(np.mean((test.y - train.y.mean()) ** 2)))
+    assert derived < 0.3 * mean and derived < 0.5 * static
+
+
+def test_static_mode_rows_give_the_same_memory_as_whole_trajectories():
+    ds = first_order_dataset(6.0, 1.0)
+    sim, static = make_samples(ds, ["y"], "simulation"), make_samples(ds, ["y"], "static")
+    rows = np.sort(np.random.default_rng(0).choice(len(static), 800, replace=False))  # a random row subsample
+    a, b = NFIR().memory(sim), NFIR().memory(static.take(rows))
+    assert a.grid == b.grid and b.rows == 800
+
+
+def test_memory_warnings_reach_describe():
+    rng = np.random.default_rng(0)
+    n = 80
+    frames = []
+    for k in range(4):
+        u = lowpass(rng.normal(size=n), 3.0)
+        frames.append(pd.DataFrame({"segment": f"s{k}", "time": np.arange(n) * 1.0, "u": u,
+                                    "y": lowpass(u, 200.0), "z": rng.normal(size=n)}))
+    ds = Dataset("drift", pd.concat(frames, ignore_index=True),
+                 Schema.from_roles({"u": "input", "y": "output", "z": "output"}), 1.0)
+    params = {"horizon": 1.0, "gamma": 0.1, "lambda": 1e-3}
+    slow = make_samples(ds, ["y"], "simulation")  # a 200-sample time constant in 80-sample records
+    m = NFIR()
+    d = m.describe(m.fit(slow, params, np.random.default_rng(0)))
+    assert d["horizons_derived"]["memory_samples"] == d["horizons_derived"]["cap_samples"] == 20
+    assert d["horizons_derived"]["grid_samples"] == [10, 20]
+    assert any("reached its cap of 20 samples" in w for w in d["warnings"])
+    noise = make_samples(ds, ["z"], "simulation")  # an output the input does not explain
+    d = m.describe(m.fit(noise, params, np.random.default_rng(0)))
+    assert any("NFIR may not beat the training mean" in w for w in d["warnings"])
+    assert d["horizons_derived"]["memory_samples"] == 0
+    explicit = NFIR(horizons=[1.0])
+    assert "warnings" not in explicit.describe(explicit.fit(noise, params, np.random.default_rng(0)))
