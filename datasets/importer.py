@@ -79,7 +79,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from enginebench.datasets.column_notes import SideColumn, side_column_notes
-from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+from enginebench.datasets.dataset import SEGMENT, Dataset
 from enginebench.datasets.import_spec import (  # noqa: F401 - re-exported: the spec's public names
     ALLOWED_KEYS,
     ImportSpec,
@@ -140,8 +140,9 @@ class _Use:
         """File columns read as text: datetime stamps, group columns and the record/segment column."""
         cols = self.columns(spec)
         text = [cols[c.name] for c in spec.schema.columns if c.role == "group"]
-        if spec.time_unit == DATETIME and self.time(spec) is not None:
-            text.append(self.time(spec))  # type: ignore[arg-type]
+        time = self.time(spec)
+        if spec.time_unit == DATETIME and time is not None:
+            text.append(time)
         if self.record is None and spec.group_key is not None:
             text.append(spec.group_key)
         return text
@@ -304,14 +305,13 @@ def _read_parquet(file: Path, spec: ImportSpec, required: dict[str, str], times:
 
 
 def _read(file: Path, spec: ImportSpec, uses: list[_Use]) -> _Table:
-    named = (
-        f"named in [records.{uses[0].record.name}] of {spec.path}" if uses[0].record is not None
-        else f"listed in files of {spec.path}"
-    )
+    """Read ``file`` once, with every column the ways it is read (``uses``) need."""
+    rec = uses[0].record
     if not file.exists():
-        raise DataError(f"{file}: file not found ({named}; paths are relative to the spec)")
+        named = f"named in [records.{rec.name}]" if rec is not None else "listed in files"
+        raise DataError(f"{file}: file not found ({named} of {spec.path}; paths are relative to the spec)")
     if file.is_dir():
-        raise DataError(f"{file}: is a folder; {'list data files in files' if uses[0].record is None else 'name a data file'}")
+        raise DataError(f"{file}: is a folder; {'list data files in files' if rec is None else 'name a data file'}")
     required: dict[str, str] = {}
     text: list[str] = []
     for use in uses:
