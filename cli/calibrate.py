@@ -7,6 +7,7 @@ import math
 
 import click
 
+from enginebench.cli.options import check_output, emit
 from enginebench.errors import DataError
 
 FAT_DATASETS = ("marine-diesel",)
@@ -74,6 +75,7 @@ def calibrate_pm(fat_ref: str, dataset: str, seed: int, pressure: str, tolerance
     from enginebench.datasets.marine_diesel.calibration import calibrate_to_fat
     from enginebench.datasets.marine_diesel.fat import load_fat, simulator_fat
 
+    check_output(output)
     if dataset not in FAT_DATASETS:
         raise DataError(f"dataset {dataset!r} has no FAT-calibrated physical model; FAT calibration is available "
                         f"for: {', '.join(FAT_DATASETS)}")
@@ -91,8 +93,6 @@ def calibrate_pm(fat_ref: str, dataset: str, seed: int, pressure: str, tolerance
     if output:
         doc = {"dataset": dataset, "fat": source, "pressure": pressure, "max_abs_pe_pct": worst,
                "tolerance_pct": tolerance, "params": params}
-        with open(output, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=2)
-        click.echo(f"wrote {output}", err=True)
+        emit(json.dumps(doc, indent=2), output)
     if worst > tolerance:
         raise SystemExit(1)

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from enginebench.cli.options import emit, store_option
+from enginebench.cli.options import check_output, emit, store_option
 
 
 def _metric_list(text: str | None) -> list[str] | None:
@@ -37,6 +37,7 @@ def compare(run_a: str, run_b: str, metrics: str, fmt: str, interval, output, st
     from enginebench.results.compare import comparison_table, compare_runs, statements
     from enginebench.results.store import RunStore
 
+    check_output(output)
     rs = RunStore(store)
     cmp = compare_runs(rs.get(run_a), rs.get(run_b), interval=interval, metric_names=_metric_list(metrics))
     if fmt == "csv":
@@ -87,6 +88,7 @@ def publish(run_ref: str, output: str, metrics: str, interval, store) -> None:
     from enginebench.results.guard import make_baseline, write_baseline
     from enginebench.results.store import RunStore
 
+    check_output(output)
     run = RunStore(store).get(run_ref)
     doc = make_baseline(run, interval=interval, metric_names=_metric_list(metrics))
     path = write_baseline(doc, output)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from enginebench.cli.options import emit, load_plugins, plugin_option, store_option
+from enginebench.cli.options import check_output, emit, load_plugins, plugin_option, split_list, store_option
+from enginebench.results.output import output_folder
 
 
 @click.command()
@@ -31,6 +32,7 @@ def layout(run_refs: tuple[str, ...], layout: str, literature: bool, fmt: str, o
     from enginebench.results import layouts
     from enginebench.results.store import RunStore
 
+    check_output(output)
     rs = RunStore(store)
     frames, owner, datasets = [], {}, []
     seen: set[str] = set()
@@ -82,7 +84,9 @@ def plots(run_ref: str, out_dir: str, methods, trajectories: int, part: str, rep
 
     load_plugins(plugins)
     run = RunStore(store).get(run_ref)
-    chosen = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
+    run.check_plugins("re-fitted for its figures")
+    chosen = split_list(methods) or None
+    output_folder(out_dir)
     report = plot_run(run, out_dir, chosen, trajectories=trajectories, part=part, repetition=repetition)
     for note in report.notes:
         click.echo(f"note: {note}", err=True)

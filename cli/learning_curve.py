@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from enginebench.cli.options import load_plugins, plugin_option, store_option
+from enginebench.cli.options import check_output, load_plugins, plugin_option, store_option
 
 
 @click.command("learning-curve")
@@ -45,6 +45,12 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore
 
+    check_output(plot_path, "--plot")
+    from enginebench.errors import DataError
+    from enginebench.results.metrics import METRICS
+
+    if metric not in METRICS:
+        raise DataError(f"--metric: unknown metric {metric!r}; use one of {', '.join(sorted(METRICS))}")
     load_plugins(plugins)
     amounts = parse_months(months)
     spec = load_spec(experiment)

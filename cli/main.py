@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import sys
 
 import click
@@ -10,15 +11,55 @@ from enginebench import __version__
 from enginebench.errors import EngineBenchError
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 class Group(click.Group):
-    """Turn EngineBenchError anywhere below into one readable line and exit code 2."""
+    """Every refusal is one ``error:`` line on stderr, never a traceback.
+
+    * EngineBenchError anywhere below: its message, exit code 2;
+    * a bad command line (unknown option, invalid value, missing argument): click's
+      message on one line with the command's ``--help`` named, exit code 2;
+    * an OSError that escaped the shared writers (a file that vanished, a full disk):
+      the file and the reason, exit code 2 (a broken pipe to ``head`` exits quietly).
+    """
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except EngineBenchError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(f"error: {_one_line(exc)}", err=True)
             sys.exit(exc.exit_code)
+        except OSError as exc:
+            if exc.errno == errno.EPIPE:
+                sys.exit(1)
+            from enginebench.results.output import os_reason
+
+            where = f" {exc.filename}" if exc.filename else ""
+            click.echo(f"error: cannot read or write{where} ({os_reason(exc)}); check the path, its permissions "
+                       "and free space, then run again", err=True)
+            sys.exit(2)
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except click.exceptions.NoArgsIsHelpError as exc:  # a group named alone: its help
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click.UsageError as exc:
+            hint = f"; see '{exc.ctx.command_path} --help'" if exc.ctx is not None else ""
+            click.echo(f"error: {_one_line(exc.format_message()).rstrip('.')}{hint}", err=True)
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            click.echo(f"error: {_one_line(exc.format_message())}", err=True)
+            sys.exit(exc.exit_code)
+        except click.exceptions.Abort:
+            click.echo("Aborted!", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})

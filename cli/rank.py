@@ -27,6 +27,7 @@ def rank(run_ref: str, methods, repetition: int, store, plugins) -> None:
 
     load_plugins(plugins)
     run = RunStore(store).get(run_ref)
+    run.check_plugins("ranked (its methods are re-fitted)")
     chosen = [m.strip() for m in methods.split(",")] if methods else None
     for key, table in rank_run(run, chosen, repetition):
         click.echo(f"\n{key}")

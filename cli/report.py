@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from enginebench.cli.options import load_plugins, plugin_option, store_option
+from enginebench.cli.options import check_metrics, load_plugins, plugin_option, split_list, store_option
+from enginebench.results.output import output_folder
 
 
 @click.command()
@@ -37,8 +38,15 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
 
     load_plugins(plugins)
     run = RunStore(store).get(run_ref)
-    chosen = [m.strip() for m in methods.split(",") if m.strip()] if methods else None
-    cols = [m.strip() for m in metrics.split(",") if m.strip()]
+    if figures:  # the figures re-fit the run's methods: with the code that made the run
+        run.check_plugins("re-fitted for the report's figures (--no-figures writes the tables only)")
+    chosen = split_list(methods) or None
+    cols = split_list(metrics)
+    have = run.metrics()["metric"]
+    check_metrics(cols, have, "--metrics", run.id)
+    if paired_metric:
+        check_metrics([paired_metric], have, "--paired", run.id)
+    output_folder(out_dir)
     result = write_report(run, out_dir, metrics=cols, paired_metric=paired_metric, figures=figures,
                           repetition=repetition, part=part, methods=chosen, trajectories=trajectories)
     for note in result.notes:
@@ -72,6 +80,8 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
     import_mlflow()  # a missing package is reported before any work
     load_plugins(plugins)
     run = RunStore(store).get(run_ref)
+    if with_report and figures:
+        run.check_plugins("re-fitted for the report's figures (--no-figures logs the tables only)")
     with tempfile.TemporaryDirectory(prefix="enginebench-report-") as tmp:
         report_dir = None
         if with_report:

@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from enginebench.cli.options import load_plugins, plugin_option, store_option
+from enginebench.cli.options import check_resumable, load_plugins, plugin_option, store_option
 
 
 @click.command()
@@ -56,6 +56,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
         if experiment or repeats or methods or seed is not None or train_size is not None:
             raise SpecError("--resume RUN takes the run's own config; give no EXPERIMENT or overrides with it")
         resume = store_obj.get(resume_ref)
+        check_resumable(resume)  # same plugin files as when it was made; no other process writing it
         from enginebench.experiments.spec import from_dict
 
         experiment_spec = from_dict(resume.config(), origin=f"run {resume.id}")

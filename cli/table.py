@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 from rich.console import Console
 
-from enginebench.cli.options import emit, store_option
+from enginebench.cli.options import check_metrics, check_output, emit, split_list, store_option
 
 
 @click.command()
@@ -28,15 +28,23 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     from enginebench.results import tables
     from enginebench.results.store import RunStore
 
+    check_output(output)
     run = RunStore(store).get(run_ref)
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     summary = tables.summarize(raw, interval=interval)
-    cols = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
+    cols = split_list(metrics) or None
+    if cols:
+        check_metrics(cols, summary["metric"], "--metrics", run.id)
+    if paired_metric:
+        check_metrics([paired_metric], raw["metric"], "--paired", run.id)
+    notes = job_note_lines(run)
     if fmt == "term" and output is None:
         Console().print(tables.to_rich(summary, cols, title=run.id))
         if paired_metric:
             click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric))
+        for line in notes:
+            click.echo(line)  # not through rich: a reason is one line, never wrapped
         return
     text = {
         "term": lambda: tables.to_markdown(summary, cols),
@@ -46,7 +54,28 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         "csv": lambda: tables.to_csv(summary),
         "html": lambda: tables.to_html(summary, cols),
     }[fmt]()
+    if notes and fmt in ("term", "md"):
+        text += "\n" + "\n".join(notes) + "\n"
     emit(text, output)
+    if notes and fmt not in ("term", "md"):  # csv, LaTeX and HTML stay parseable: the notes go to stderr
+        for line in notes:
+            click.echo(line, err=True)
+
+
+def job_note_lines(run, width: int = 200) -> list[str]:
+    """The run's distinct failure reasons and job warnings with their counts, one short line each.
+
+    Same wording as at the end of ``run`` (``results.notes.note_lines``); a reason longer
+    than ``width`` characters is cut (``runs show`` prints it whole).
+    """
+    from enginebench.results.notes import note_lines
+
+    def short(text: str) -> str:
+        text = " ".join(text.split())
+        return text if len(text) <= width else text[: width - 3] + "..."
+
+    notes = run.job_notes()
+    return note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
 
 
 def paired_lines(tests, metric: str) -> str:
@@ -64,7 +93,7 @@ def runs() -> None:
 @runs.command("list")
 @store_option
 def runs_list(store) -> None:
-    """One line per run: id, status, finished jobs, dataset, methods."""
+    """One line per run: id, status, finished jobs, dataset, methods (a damaged run: why)."""
     from enginebench.results.store import RunStore
 
     rs = RunStore(store)
@@ -73,17 +102,21 @@ def runs_list(store) -> None:
         click.echo(f"no runs in {rs.root}")
         return
     for r in found:
+        why = r.damage()
+        if why is not None:  # listed with the reason; every other run stays usable
+            click.echo(f"{r.id}  {'damaged':<11} {why}")
+            continue
         info = r.info()
         cfg = r.config()
         click.echo(f"{r.id}  {info.get('status', '?'):<11} {info['finished_jobs'] if 'finished_jobs' in info else len(r.finished_jobs(verify=False))}/{info.get('n_jobs', '?')} jobs"
-                   f"  {cfg.get('dataset', '?')}  {','.join(cfg.get('methods', []))}")
+                   f"  {cfg.get('dataset', '?')}  {','.join(str(m) for m in cfg.get('methods', []))}")
 
 
 @runs.command("show")
 @click.argument("run_ref", metavar="RUN", default="latest")
 @store_option
 def runs_show(run_ref: str, store) -> None:
-    """Config, environment, timings and a per-method summary of RUN."""
+    """Config, environment, plugin files, failure reasons and warnings, timings and a per-method summary of RUN."""
     import json
 
     from enginebench.results.store import RunStore
@@ -98,6 +131,16 @@ def runs_show(run_ref: str, store) -> None:
     click.echo(f"environment: python {env.get('python')}, {env.get('cpu')} x{env.get('cpu_count')}, gpu {env.get('gpu')}, "
                f"git {env.get('git_commit')}")
     click.echo("packages: " + json.dumps(env.get("packages", {})))
+    for rec in run.plugins() or []:
+        click.echo(f"plugin file: {rec.get('path')} (sha256 {str(rec.get('sha256'))[:12]}; "
+                   f"methods {', '.join(map(str, rec.get('methods', [])))})")
+    from enginebench.results.notes import note_lines
+
+    notes = note_lines(run.job_notes())
+    if notes:
+        click.echo("\nwhat the jobs said (distinct failure reasons and warnings, with counts):")
+        for line in notes:
+            click.echo("  " + line)
     metrics = run.metrics()
     times = metrics[metrics["metric"].str.startswith("time_")].groupby(["method", "metric"])["value"].mean().unstack()
     click.echo("\nmean seconds per job:\n" + times.round(3).to_string())
@@ -121,5 +164,7 @@ def runs_rm(run_refs, yes: bool, store) -> None:
     if not yes:
         click.confirm(f"delete {len(targets)} run(s): {', '.join(r.id for r in targets)}?", abort=True)
     for r in targets:
+        r.lock()  # a run another process is writing is refused, naming that process
         shutil.rmtree(r.path)
+        r.unlock()
         click.echo(f"deleted {r.id}")

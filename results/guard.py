@@ -55,6 +55,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import DataError
+from enginebench.results.output import write_output
 from enginebench.results.compare import JOIN, lower_is_better, num, text_table
 from enginebench.results.tables import summarize
 
@@ -163,10 +164,7 @@ def write_baseline(baseline: dict[str, Any], path: str | Path) -> Path:
     entries = [f"    {json.dumps(e, allow_nan=False)}" for e in baseline["entries"]]
     lines += [",\n".join(entries)] if entries else []
     lines += ["  ]", "}"]
-    if path.parent and not path.parent.is_dir():
-        raise BaselineError(f"cannot write {path}: folder {path.parent} does not exist")
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+    return write_output(path, "\n".join(lines) + "\n")
 
 
 # -- reading ------------------------------------------------------------------------

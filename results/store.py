@@ -26,12 +26,23 @@ Faults, and what the store does about them:
 * a damaged job file (truncated, garbled: job files carry Parquet page checksums): reading
   the run's metrics refuses with a message naming the file, and ``finished_jobs`` does not
   count it, so ``run --resume`` recomputes that job and keeps every other job as it is
-  (``damaged_jobs`` names the damaged files and why).
+  (``damaged_jobs`` names the damaged files and why);
+* a damaged run folder (run.json, config.toml or environment.json missing or
+  unreadable): ``Run.damage()`` says why, ``runs list`` shows it as damaged, and
+  ``latest`` is the newest run that is *not* damaged; reading it by id is one line;
+* two processes writing one run (two ``run --resume`` at once): the writer holds an OS
+  lock (``fcntl.flock`` on ``run.lock`` in the run folder, holding the writer's pid) from
+  the moment the run is marked running until it is marked finished or interrupted, or
+  its process dies; another writer gets a StoreError naming the run and the holder's pid;
+* plugin files: a new run records the path and SHA-256 of every plugin file providing
+  one of its methods (``plugins`` in run.json); ``Run.check_plugins`` refuses to resume
+  or re-fit a run whose plugin files are absent, changed, not loaded, or new.
 """
 
 from __future__ import annotations
 
 import calendar
+import contextlib
 import errno
 import json
 import os
@@ -41,7 +52,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pandas as pd
 import pyarrow as pa
@@ -50,8 +61,17 @@ import tomli_w
 
 from enginebench.errors import StoreError
 
+try:
+    import fcntl
+except ImportError:  # not POSIX: runs are written unlocked
+    fcntl = None  # type: ignore[assignment]
+
 DEFAULT_STORE = "enginebench-runs"
 JOB_META_KEY = b"enginebench.job"
+LOCK_FILE = "run.lock"
+"""The lock file of a run folder (see ``Run.lock``)."""
+REQUIRED_FILES = ("run.json", "config.toml", "environment.json")
+"""The files every run folder needs; a run missing one is damaged."""
 
 
 def store_root(path: str | Path | None = None) -> Path:
@@ -142,6 +162,33 @@ READ_ERRORS = (OSError, pa.ArrowException, ValueError, KeyError, IndexError, Typ
 """What reading a damaged Parquet file can raise (pyarrow's errors, decoding errors of its metadata)."""
 
 
+_HELD: dict[str, int] = {}
+"""Run folder -> open lock file descriptor, for the run locks this process holds."""
+
+
+def _lock_key(path: Path) -> str:
+    return str(Path(path).resolve())
+
+
+def _lock_holder(fd: int) -> str:
+    """The pid written in a lock file, for messages ('unknown' when unreadable)."""
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        return "unknown"
+    return text if text.isdigit() else "unknown"
+
+
+def methods_used(config: dict[str, Any]) -> list[str]:
+    """The method names a run's config uses: its methods and any method an option names (a cascade's stages)."""
+    names = [str(m) for m in config.get("methods", []) if isinstance(m, str)]
+    options = config.get("method_options", {})
+    for opts in (options.values() if isinstance(options, dict) else []):
+        if isinstance(opts, dict):
+            names += [v for v in opts.values() if isinstance(v, str) and v not in names]
+    return names
+
+
 def _jsonable(obj: Any) -> Any:
     """JSON-safe copy: numpy scalars and arrays become numbers and lists."""
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
@@ -176,26 +223,144 @@ class Run:
         except OSError as exc:
             raise _write_failed(path, exc, self.store, what, self._resume_hint()) from exc
 
-    def info(self) -> dict[str, Any]:
-        try:
-            info = json.loads((self.path / "run.json").read_text())
-        except (OSError, ValueError) as exc:
-            raise StoreError(f"run {self.id}: run.json unreadable ({_damage(exc)}); the run folder is damaged") from None
-        if not isinstance(info, dict):
-            raise StoreError(f"run {self.id}: run.json does not hold a JSON object; the run folder is damaged")
-        return info
+    def _damaged(self, name: str, why: str) -> StoreError:
+        return StoreError(f"run {self.id}: {name} {why}; the run folder is damaged "
+                          f"(`enginebench runs rm {self.id}` removes it)")
 
-    def update_info(self, **changes: Any) -> None:
-        info = {**self.info(), **changes}
-        self._write(self.path / "run.json", json.dumps(_jsonable(info), indent=2).encode(), "the run's status file")
-
-    def config(self) -> dict[str, Any]:
+    def _load_object(self, name: str) -> dict[str, Any] | str:
+        """run.json / environment.json / config.toml as a dict, or why it cannot be (a phrase)."""
         import tomllib
 
-        return tomllib.loads((self.path / "config.toml").read_text())
+        try:
+            text = (self.path / name).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return "is missing"
+        except (OSError, ValueError) as exc:
+            return f"is unreadable ({_damage(exc)})"
+        try:
+            data = tomllib.loads(text) if name.endswith(".toml") else json.loads(text)
+        except ValueError as exc:
+            return f"is not valid {'TOML' if name.endswith('.toml') else 'JSON'} ({_damage(exc)})"
+        return data if isinstance(data, dict) else "does not hold a table of keys"
+
+    def _read_object(self, name: str) -> dict[str, Any]:
+        data = self._load_object(name)
+        if isinstance(data, str):
+            raise self._damaged(name, data)
+        return data
+
+    def info(self) -> dict[str, Any]:
+        """run.json: id, name, status, config hash, job counts, times, recorded plugins."""
+        return self._read_object("run.json")
+
+    def update_info(self, **changes: Any) -> None:
+        """Change run.json under the run's lock; the lock is kept while the status is running, else released."""
+        held = self.holds_lock()
+        self.lock()
+        keep = held
+        try:
+            info = {**self.info(), **changes}
+            keep = info.get("status") == "running"
+            self._write(self.path / "run.json", json.dumps(_jsonable(info), indent=2).encode(), "the run's status file")
+        finally:
+            if not keep:
+                self.unlock()
+
+    def config(self) -> dict[str, Any]:
+        """config.toml: the resolved experiment."""
+        return self._read_object("config.toml")
 
     def environment(self) -> dict[str, Any]:
-        return json.loads((self.path / "environment.json").read_text())
+        """environment.json: package versions, git commit, CPU/GPU, seeds."""
+        return self._read_object("environment.json")
+
+    def damage(self) -> str | None:
+        """Why this run folder is damaged (a required file missing or unreadable), or None when it is whole."""
+        for name in REQUIRED_FILES:
+            data = self._load_object(name)
+            if isinstance(data, str):
+                return f"{name} {data}"
+        return None
+
+    # -- the write lock ------------------------------------------------------------
+    def holds_lock(self) -> bool:
+        """Whether this process holds the run's write lock."""
+        return _lock_key(self.path) in _HELD
+
+    def lock(self) -> None:
+        """Take the run's write lock for this process, or fail with the holder's pid (no-op when held already).
+
+        An OS lock (``fcntl.flock``) on ``run.lock``: the kernel releases it when the
+        process dies, so a killed run can be resumed at once. Where the file system has
+        no locks (or the platform no ``fcntl``) the run is written unlocked.
+        """
+        key = _lock_key(self.path)
+        if key in _HELD or fcntl is None:
+            return
+        path = self.path / LOCK_FILE
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise _write_failed(path, exc, self.store, "the run's lock file", "run again") from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = _lock_holder(fd)
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise StoreError(
+                    f"run {self.id} is being written by another process (pid {holder}, lock {path}); "
+                    f"wait for it to end (or stop it), then `enginebench run --resume {self.id}` if it is unfinished"
+                ) from None
+            return  # no locks on this file system
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError:
+            pass  # the pid is only for messages
+        _HELD[key] = fd
+
+    def unlock(self) -> None:
+        """Release the run's write lock if this process holds it."""
+        fd = _HELD.pop(_lock_key(self.path), None)
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_UN)
+            finally:
+                os.close(fd)
+
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Hold the lock for one write (kept if this process held it before)."""
+        held = self.holds_lock()
+        self.lock()
+        try:
+            yield
+        finally:
+            if not held:
+                self.unlock()
+
+    # -- plugins ---------------------------------------------------------------------
+    def plugins(self) -> list[dict[str, Any]] | None:
+        """The plugin files the run recorded (path, sha256, methods), or None for a run made before they were recorded."""
+        recorded = self.info().get("plugins")
+        if recorded is None:
+            return None
+        if not isinstance(recorded, list) or not all(isinstance(r, dict) for r in recorded):
+            raise self._damaged("run.json", "has a 'plugins' entry that is not a list of objects")
+        return recorded
+
+    def check_plugins(self, doing: str = "resumed") -> None:
+        """Refuse (StoreError, one line) when this process's plugin files are not those the run was made with."""
+        from enginebench.methods.registry import plugin_mismatches
+
+        recorded = self.plugins()
+        if recorded is None:
+            return
+        problems = plugin_mismatches(recorded, methods_used(self.config()))
+        if problems:
+            raise StoreError(f"run {self.id} cannot be {doing}: " + "; ".join(problems)
+                             + "; use the plugin files the run was made with (`enginebench runs show` lists them)")
 
     def job_files(self) -> list[Path]:
         """The job files present under their final names (temporary files excluded), sorted."""
@@ -255,13 +420,15 @@ class Run:
         table = pa.Table.from_pandas(rows, preserve_index=False)
         table = table.replace_schema_metadata({**(table.schema.metadata or {}), JOB_META_KEY: json.dumps(_jsonable(meta)).encode()})
         path = self.jobs_dir / f"{key}.parquet"
-        self._write(path, _table_bytes(table), f"job {key} of run {self.id} to")
+        with self._writing():
+            self._write(path, _table_bytes(table), f"job {key} of run {self.id} to")
         return path
 
     def write_table(self, relative: str, frame: pd.DataFrame) -> Path:
         """Store an extra artefact table (rankings, predictions) inside the run, atomically."""
         path = self.path / relative
-        self._write(path, _table_bytes(pa.Table.from_pandas(frame, preserve_index=False)), "the table")
+        with self._writing():
+            self._write(path, _table_bytes(pa.Table.from_pandas(frame, preserve_index=False)), "the table")
         return path
 
     def read_table(self, relative: str) -> pd.DataFrame:
@@ -362,17 +529,25 @@ class RunStore:
                 raise _write_failed(path, exc, self.root, "the run folder", "run again") from exc
         raise StoreError(f"cannot create a run folder under {self.root}: {base} and 10000 variants are taken")
 
-    def create(self, name: str, config: dict[str, Any], config_hash: str, environment: dict[str, Any], n_jobs: int) -> Run:
-        """A new run folder with its config, environment and run.json (status running).
+    def create(self, name: str, config: dict[str, Any], config_hash: str, environment: dict[str, Any], n_jobs: int,
+               plugins: list[dict[str, Any]] | None = None) -> Run:
+        """A new run folder with its config, environment and run.json (status running), locked by this process.
 
         run.json is written last: until it exists the folder is not a run (``runs`` skips
-        it), and a failed write removes the folder again.
+        it), and a failed write removes the folder again. ``plugins`` (path, sha256,
+        methods of each plugin file) defaults to the plugin files this process loaded for
+        the config's methods (``methods.registry.plugin_records``).
         """
+        if plugins is None:
+            from enginebench.methods.registry import plugin_records
+
+            plugins = plugin_records(methods_used(config))
         created_ns = time.time_ns()
         stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(created_ns / 1e9))
         path = self._claim(f"{stamp}-{_slug(name)}-{config_hash[:6]}")
         run = Run(path)
         try:
+            run.lock()
             try:
                 (path / "jobs").mkdir()
             except OSError as exc:
@@ -383,9 +558,10 @@ class RunStore:
             run._write(path / "run.json", json.dumps({
                 "id": run.id, "name": name, "status": "running", "config_hash": config_hash, "n_jobs": n_jobs,
                 "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(created_ns / 1e9)),
-                "created_ns": created_ns, "pid": os.getpid(),
+                "created_ns": created_ns, "pid": os.getpid(), "plugins": plugins,
             }, indent=2).encode(), "the run's status file")
         except BaseException:
+            run.unlock()
             shutil.rmtree(path, ignore_errors=True)
             raise
         return run
@@ -397,7 +573,11 @@ class RunStore:
         return sorted((Run(p) for p in self.root.iterdir() if (p / "run.json").is_file()), key=_order)
 
     def get(self, ref: str) -> Run:
-        """A run by id, unique id prefix, 'latest' (the run created last), or path."""
+        """A run by id, unique id prefix, path, or 'latest': the run created last among those not damaged.
+
+        A damaged run (``Run.damage``) is skipped by 'latest' so that one broken folder
+        does not stop every command; it is still reached by its id (to show or remove it).
+        """
         path = Path(ref)
         if (path / "run.json").is_file():
             return Run(path)
@@ -405,7 +585,10 @@ class RunStore:
         if ref == "latest":
             if not runs:
                 raise StoreError(f"no runs in {self.root}")
-            return runs[-1]
+            for run in reversed(runs):
+                if run.damage() is None:
+                    return run
+            raise StoreError(f"every run in {self.root} is damaged; 'enginebench runs list' says why")
         matches = [r for r in runs if r.id == ref] or [r for r in runs if r.id.startswith(ref)]
         if not matches:
             raise StoreError(f"no run {ref!r} in {self.root}; 'enginebench runs list' shows the runs")

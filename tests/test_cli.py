@@ -109,7 +109,7 @@ class Median(Method):
     bad = tmp_path / "bad_plugin.py"
     bad.write_text("raise RuntimeError('boom')\n")
     out = runner.invoke(cli, ["methods", "list", "--plugin", str(bad)])
-    assert out.exit_code == 2 and out.output.strip() == f"error: plugin file {bad}: RuntimeError: boom"
+    assert out.exit_code == 2 and out.output.strip() == f"error: plugin file {bad}: RuntimeError: boom (raised while importing it); fix the plugin"
 
 
 @pytest.mark.shared_data

@@ -333,4 +333,91 @@ def test_a_damaged_status_file_is_one_error_line(finished_run):
     result = CliRunner().invoke(cli, ["runs", "show", run.id, "--store", str(run.store)])
     assert result.exit_code == 2
     (line,) = result.output.splitlines()
-    assert line.startswith(f"error: run {run.id}: run.json unreadable (") and "the run folder is damaged" in line
+    assert line.startswith(f"error: run {run.id}: run.json is not valid JSON (") and "the run folder is damaged" in line
+
+
+# ----------------------------------------------------------------------------- damaged run folders
+@pytest.mark.parametrize("damage, why", [
+    (lambda p: (p / "config.toml").unlink(), "config.toml is missing"),
+    (lambda p: (p / "config.toml").write_text("name = "), "config.toml is not valid TOML ("),
+    (lambda p: (p / "environment.json").write_text("[1, 2]"), "environment.json does not hold a table of keys"),
+    (lambda p: (p / "run.json").write_text("{"), "run.json is not valid JSON ("),
+])
+def test_one_damaged_run_is_listed_as_damaged_and_latest_skips_it(finished_run, damage, why):
+    """A damaged run folder no longer stops `runs list` and `table latest` for the whole store."""
+    import shutil
+
+    _, good = finished_run
+    store = str(good.store)
+    newer = good.store / "29990101-000000-newer-abcdef"
+    shutil.copytree(good.path, newer)
+    info = json.loads((newer / "run.json").read_text())
+    (newer / "run.json").write_text(json.dumps({**info, "id": newer.name, "created_ns": info["created_ns"] + 10**9}))
+    damage(newer)
+    listed = CliRunner().invoke(cli, ["runs", "list", "--store", store])
+    assert listed.exit_code == 0, listed.output
+    lines = listed.output.splitlines()
+    assert lines[0].startswith(f"{good.id}  finished") and len(lines) == 2
+    assert lines[1].startswith(f"{newer.name}  damaged") and why in lines[1]
+    table = CliRunner().invoke(cli, ["table", "latest", "--format", "csv", "--store", store])
+    assert table.exit_code == 0 and RunStore(store).get("latest").id == good.id
+    shown = CliRunner().invoke(cli, ["runs", "show", newer.name, "--store", store])
+    assert shown.exit_code == 2 and shown.output.count("\n") == 1
+    assert shown.output.startswith(f"error: run {newer.name}: {why}") and "the run folder is damaged" in shown.output
+    removed = CliRunner().invoke(cli, ["runs", "rm", newer.name, "--yes", "--store", store])
+    assert removed.exit_code == 0 and not newer.exists()
+
+
+def test_latest_when_every_run_is_damaged(finished_run):
+    _, run = finished_run
+    (run.path / "environment.json").unlink()
+    out = CliRunner().invoke(cli, ["table", "latest", "--store", str(run.store)])
+    assert out.exit_code == 2
+    assert out.output == f"error: every run in {run.store} is damaged; 'enginebench runs list' says why\n"
+
+
+# ----------------------------------------------------------------------------- one writer per run
+HOLD = """
+import sys, time
+from enginebench.results.store import Run
+Run(__import__("pathlib").Path(sys.argv[1])).lock()
+print("locked", flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_run_being_written_is_locked_against_a_second_writer_until_its_process_dies(toy_parquet, tmp_path):
+    """Two writers of one run: the second gets one error line naming the run and the holder's pid."""
+    spec = fault_spec(toy_parquet)
+    store = RunStore(tmp_path / "runs")
+
+    class Stop(Exception):
+        pass
+
+    def stop(done, total, job):
+        if done == 2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_experiment(spec, store, workers=1, progress=stop)
+    (run,) = store.runs()
+    assert run.info()["status"] == "interrupted" and not run.holds_lock()
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout.readline().strip() == b"locked"
+        for args in (["run", "--resume", run.id, "-j", "1", "-q"], ["runs", "rm", run.id, "--yes"]):
+            out = CliRunner().invoke(cli, [*args, "--store", str(store.root)])
+            assert out.exit_code == 2, out.output
+            assert out.output == (f"error: run {run.id} is being written by another process (pid {holder.pid}, lock "
+                                  f"{run.path / 'run.lock'}); wait for it to end (or stop it), then "
+                                  f"`enginebench run --resume {run.id}` if it is unfinished\n")
+        with pytest.raises(StoreError, match=f"pid {holder.pid}"):
+            run_experiment(spec, store, workers=1, resume=run)  # the library refuses too
+        assert len(run.finished_jobs()) == 2 and run.info()["status"] == "interrupted"
+    finally:
+        holder.kill()
+        holder.wait()
+    # the OS released the dead holder's lock: the run resumes at once
+    out = CliRunner().invoke(cli, ["run", "--resume", run.id, "-j", "1", "-q", "--store", str(store.root)])
+    assert out.exit_code == 0, out.output
+    assert run.info()["status"] == "finished" and len(run.finished_jobs()) == 6 and not run.holds_lock()
