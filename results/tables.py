@@ -283,7 +283,7 @@ def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str
     for r in _rows(cells, bold, lambda v: "\x00" + v):
         lines.append(" & ".join(r"\textbf{" + _latex_escape(c[1:]) + "}" if c.startswith("\x00") else _latex_escape(c)
                                 for c in r) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}"] + [f"% {n}" for n in table_notes(summary, cells)]
+    lines += [r"\bottomrule", r"\end{tabular}"] + [f"% {_latex_escape(n)}" for n in table_notes(summary, cells)]
     return "\n".join(lines) + "\n"
 
 
