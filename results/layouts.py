@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import DataError
-from enginebench.results.stats import paired_ttest, t_interval, wilcoxon
+from enginebench.results.stats import paired_pvalues, t_interval
 
 PUBLISHED = Path(__file__).resolve().parent / "published"
 LITERATURE = "literature (confidential data; not comparable)"
@@ -136,11 +136,8 @@ def seed003_paired(metrics: pd.DataFrame, split: str = "test", metric: str = "rm
         row = {"target": target, "split": split, "metric": metric, "best": best, "second": second,
                "mean_difference": float((pair[second] - pair[best]).mean()) if len(pair) else np.nan,
                "t_pvalue": np.nan, "wilcoxon_pvalue": np.nan, "n_pairs": len(pair), "note": ""}
-        if len(pair) >= 2:
-            row["t_pvalue"] = paired_ttest(pair[second], pair[best])[1]
-            row["wilcoxon_pvalue"] = wilcoxon(pair[second], pair[best])[1]
-        else:
-            row["note"] = f"only {len(pair)} paired repetition(s); a paired test needs at least 2"
+        # no test from fewer than 2 pairs or from copies (a difference that never varies): the note says why
+        row["t_pvalue"], row["wilcoxon_pvalue"], row["note"] = paired_pvalues(pair[second], pair[best])
         rows.append(row)
     return pd.DataFrame(rows, columns=["target", "split", "metric", "best", "second", "mean_difference", "t_pvalue",
                                        "wilcoxon_pvalue", "n_pairs", "note"])
