@@ -8,7 +8,7 @@ import numpy as np
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params
+from enginebench.methods.base import Method, Params, SegmentPredictions
 
 
 class NaiveMean(Method):
@@ -23,7 +23,8 @@ class NaiveMean(Method):
         return train.y.mean(axis=0)
 
     def predict(self, fitted: np.ndarray, data: Samples) -> list[np.ndarray]:
-        return [np.broadcast_to(fitted, (len(s), fitted.size)).copy() for s in data.segments]
+        out = [np.broadcast_to(fitted, (len(s), fitted.size)).copy() for s in data.segments]
+        return SegmentPredictions(out) if data.mode == "simulation" else out
 
     def describe(self, fitted: np.ndarray) -> dict[str, Any]:
         return {"mean": fitted.tolist()}

@@ -18,7 +18,7 @@ import numpy as np
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params
+from enginebench.methods.base import Method, Params, SegmentPredictions
 
 
 def physical_model(data: Samples) -> Any:
@@ -122,7 +122,8 @@ class PhysicalModelMethod(Method):
         return {"model": pm.name, "params": pm.calibrate(calibration_signals(train))}
 
     def predict(self, fitted: dict[str, Any], data: Samples) -> list[np.ndarray]:
-        return simulate_rows(physical_model(data), fitted["params"], data)
+        out = simulate_rows(physical_model(data), fitted["params"], data)
+        return SegmentPredictions(out) if data.mode == "simulation" else out
 
     def describe(self, fitted: dict[str, Any]) -> dict[str, Any]:
         return dict(fitted)

@@ -8,24 +8,27 @@ import pytest
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods import registry
-from enginebench.methods.base import Method
-from enginebench.testing import CHECKS, ConformanceError, check_method, tiny_samples
+from enginebench.methods.base import Method, SegmentPredictions
+from enginebench.testing import CHECKS, TINY_INIT, ConformanceError, check_method, tiny_samples
 
 SMALL_GRID = {"gamma_grid": (-2, 0, 3), "lambda_grid": (-3, -1, 3)}
 
 
-@pytest.mark.parametrize("name, options", [
-    ("naive-mean", {}),
-    ("naive-last", {}),
-    ("krls", SMALL_GRID),
-    ("pm", {}),  # on the check's tiny linear physical model
-    ("nfir", {}),
+@pytest.mark.parametrize("name, options, params", [
+    ("naive-mean", {}, None),
+    ("naive-last", {}, None),
+    ("krls", SMALL_GRID, None),
+    ("pm", {}, None),  # on the check's tiny linear physical model
+    ("nfir", {}, None),  # static and simulation, horizons derived from the tiny data
+    ("sindy", {"derivative": "kalman", "degrees": (1, 2), "n_alphas": 1}, None),
+    ("moe", {"device": "cpu", "batch_size": 64}, {"epochs": 3, "n_experts": 2}),
 ])
-def test_builtin_methods_conform(name, options):
+def test_builtin_methods_conform(name, options, params):
     cls = registry.get(name)
-    report = check_method(cls, options)
+    report = check_method(cls, options, params=params)
     assert report.method == name and not report.skipped
-    for mode in sorted(cls.modes & {"static", "window"}):
+    assert set(report.modes) == set(cls.modes)
+    for mode in sorted(cls.modes):
         for check in CHECKS[2:]:
             assert f"{check}[{mode}]" in report.passed
 
@@ -36,10 +39,11 @@ def test_mtl_krls_conforms():
     assert "bad-input[static]" in report.passed and not report.skipped
 
 
-def test_simulation_only_methods_are_skipped_with_the_reason():
-    report = check_method(registry.get("sindy"))
-    assert report.passed == ["attributes", "options"]
-    assert "check_method covers static and window" in report.skipped["determinism"]
+def test_simulation_only_methods_get_the_whole_suite():
+    report = check_method(registry.get("sindy"), {"derivative": "kalman", "degrees": (1,), "n_thresholds": 1})
+    assert report.modes == ("simulation",) and not report.skipped
+    assert report.passed == ["attributes", "options"] + [f"{c}[simulation]" for c in (
+        "no-target-leakage", "determinism", "shapes", "pickle-round-trip", "bad-input")]
 
 
 # -- broken methods --------------------------------------------------------------------------
@@ -142,6 +146,129 @@ class Lax(MeanBase):
         self.options = dict(options)
 
 
+class HoldInit(Method):
+    """Simulation mode done right: hold the last measured output of the init window (y0 without one)."""
+
+    name = "test-hold"
+    family = "baseline"
+    modes = frozenset({"simulation"})
+
+    def fit(self, train, params, rng):
+        return {"inputs": train.input_names}
+
+    def _start(self, s):
+        if s.y_init is not None and len(s.y_init):
+            return np.asarray(s.y_init[-1], dtype=float)
+        return np.asarray(s.y0, dtype=float)
+
+    def predict(self, fitted, data):
+        if tuple(data.input_names) != tuple(fitted["inputs"]):
+            raise MethodError(f"{self.name}: inputs {data.input_names} differ from the fitted {fitted['inputs']}")
+        starts = [self._start(s) for s in data.segments]
+        if not all(np.isfinite(v).all() for v in starts):
+            raise MethodError(f"{self.name}: non-finite initial output")
+        return SegmentPredictions([np.tile(v, (len(s), 1)) for v, s in zip(starts, data.segments)])
+
+
+class PlainList(HoldInit):
+    name = "test-plain-list"
+
+    def predict(self, fitted, data):
+        return list(super().predict(fitted, data))
+
+
+class BadFlags(HoldInit):
+    name = "test-bad-flags"
+
+    def predict(self, fitted, data):
+        preds = super().predict(fitted, data)
+        preds.diverged = np.zeros(len(preds))  # floats, not bools
+        return preds
+
+
+class WholeSegment(HoldInit):
+    name = "test-whole-segment"
+
+    def predict(self, fitted, data):  # a row for the init window too
+        return SegmentPredictions([np.tile(self._start(s), (len(s.U), 1)) for s in data.segments])
+
+
+class PeekAfterWindow(HoldInit):
+    name = "test-peek-after-window"
+
+    def predict(self, fitted, data):
+        preds = super().predict(fitted, data)
+        return SegmentPredictions([p if s.y is None else p + 0 * s.y + s.y[-1] for p, s in zip(preds, data.segments)])
+
+
+class CrashOnNaNInit(HoldInit):
+    name = "test-crash-on-nan-init"
+
+    def predict(self, fitted, data):
+        for s in data.segments:
+            if s.y_init is not None and not np.isfinite(s.y_init).all():
+                raise ValueError("cannot convert float NaN to integer")
+        return super().predict(fitted, data)
+
+
+def test_a_simulating_method_that_uses_the_init_window_passes():
+    report = check_method(HoldInit)
+    assert report.passed[-1] == "bad-input[simulation]"
+
+
+def test_simulating_methods_must_return_segment_predictions_with_bool_flags():
+    failures = failures_of(PlainList)
+    assert failures["shapes"] == [
+        "[shapes] method 'test-plain-list' (simulation mode): predict returned list, not SegmentPredictions; a "
+        "simulating method returns SegmentPredictions(arrays, diverged=flags) (enginebench.methods.base), one flag "
+        "per segment"]
+    failures = failures_of(BadFlags)
+    assert "returned diverged flags of dtype float64 and shape (2,); expected one bool per segment, shape (2,)" \
+        in failures["shapes"][0]
+
+
+def test_predictions_must_skip_the_init_window():
+    failures = failures_of(WholeSegment)
+    assert failures["shapes"][0].startswith(
+        "[shapes] method 'test-whole-segment' (simulation mode): predict returned shape (25, 1) for segment 's3'; "
+        "expected (22, 1)")
+
+
+def test_measured_outputs_after_the_window_reaching_predict_fail_leakage(monkeypatch):
+    monkeypatch.setattr(Samples, "without_targets", lambda self: self)
+    failures = failures_of(PeekAfterWindow)
+    assert failures["no-target-leakage"] == [
+        "[no-target-leakage] method 'test-peek-after-window' (simulation mode): changing the measured outputs after "
+        "the initialisation window (the first 3 samples, y_init) changed the predictions: a simulation may use y0 "
+        "and y_init only, then runs free on the inputs"]
+
+
+def test_a_traceback_on_a_nan_init_window_fails_bad_input():
+    failures = failures_of(CrashOnNaNInit)
+    assert list(failures) == ["bad-input"]
+    assert failures["bad-input"][0].startswith(
+        "[bad-input] method 'test-crash-on-nan-init' (simulation mode): predict with a NaN in the initialisation "
+        "window (y_init) raised ValueError: cannot convert float NaN to integer, a bare traceback for the user")
+
+
+def test_fixed_params_replace_their_grid():
+    seen = []
+
+    class Recorder(HoldInit):
+        name = "test-recorder"
+
+        def search_space(self, data):
+            return {"a": np.array([1, 2, 3]), "b": np.array([10.0, 20.0])}
+
+        def fit(self, train, params, rng):
+            seen.append(dict(params))
+            return super().fit(train, params, rng)
+
+    with pytest.raises(ConformanceError, match="pickle"):  # a local class does not pickle by reference
+        check_method(Recorder, params={"b": 5.0})
+    assert seen and all(p["b"] == 5.0 and p["a"] in (1, 2, 3) for p in seen)
+
+
 def failures_of(cls: type[Method]) -> dict[str, list[str]]:
     with pytest.raises(ConformanceError) as info:
         check_method(cls)
@@ -227,6 +354,17 @@ def test_silently_accepted_unknown_options_fail():
     failures = failures_of(Lax)
     assert list(failures) == ["options"]
     assert "was accepted silently" in failures["options"][0]
+
+
+def test_tiny_simulation_samples_carry_the_init_window():
+    train, test = tiny_samples("simulation")
+    assert train.init_samples == 0 and [s.rows.tolist() for s in train.segments] == [list(range(30))] * 3
+    assert test.init_samples == TINY_INIT == 3
+    for s in test.segments:
+        assert s.rows.tolist() == list(range(3, 25)) and s.y_init.shape == (3, 1) and len(s.U) == 25
+        np.testing.assert_array_equal(s.y0, s.y_init[0])
+    view = test.without_targets()
+    assert view.segments[0].y is None and view.segments[0].y_init.shape == (3, 1)
 
 
 def test_tiny_samples_shapes():
