@@ -15,12 +15,14 @@ def methods() -> None:
 @methods.command("list")
 @plugin_option
 def methods_list(plugins) -> None:
-    """One line per method: name, family, supported modes, summary."""
-    from enginebench.methods.registry import available
+    """One line per method: name, family, supported modes, summary (an installed plugin that fails to load: why)."""
+    from enginebench.methods.registry import available, broken
 
     load_plugins(plugins)
     for name, cls in available().items():
         click.echo(f"{name:<14} {cls.family:<12} {','.join(sorted(cls.modes)):<24} {cls.summary}")
+    for name, why in broken().items():
+        click.echo(f"{name:<14} {'BROKEN':<12} {'-':<24} {why}")
 
 
 @methods.command("show")
