@@ -1,0 +1,480 @@
+"""``narx``: kernel NARX, Gaussian-kernel regularised least squares on lagged outputs AND inputs, run free.
+
+Model, per target y (one MISO model per target; its own past outputs, every input)::
+
+    y(t) = f( y(t-na), ..., y(t-1), u_j(t-nk), ..., u_j(t-nk-nb+1) for each input j )
+    f(z) = sum_i beta_i exp(-(gamma / d) |z - c_i|^2)
+
+on standardised signals (each signal's training mean and standard deviation, the same
+for all of its lags), d the number of regressors, so one relative ``gamma`` grid suits
+every order. Training is one step ahead on measured outputs (the equation-error fit);
+rows start where all lags lie inside their training segment. The target is the
+standardised output, not centred further: the ridge shrinks towards the training mean.
+
+Solvers: up to ``exact_max_rows`` regression rows, exact KRLS (the centres c_i are all
+rows, one factorisation per gamma serves every lambda: ``methods/shifted.py``); above,
+Nystroem centres drawn with the job's generator and FALKON's preconditioned conjugate
+gradient (``methods/falkon.py``), all lambdas of a gamma in one CG. Training sets larger
+than ``max_rows`` rows are subsampled uniformly (rows are independent regression pairs
+one step ahead). A simulated step then costs O(centres x d), never O(training rows).
+
+Free run (``predict``): the first lagged outputs are the init window's measured ones
+(``y_init``; ``y0`` alone without a window; edge padding before row 0), after the window
+only simulated outputs are fed back. All segments, and in ``predict_grid`` all grid
+points (and targets), step together in one time loop: per step one product of the
+output-lag history with the centres, one addition of the input part, one exp2 and one
+product with the coefficients. The input part of the exponent does not depend on the
+simulated outputs, so it is computed for blocks of time steps at once (a matrix
+product); the |z|^2 terms are folded into both products (the history stores y and y^2),
+so the exponent is -(gamma/d) |z - c|^2 <= 0 exactly as written and f stays bounded: a
+run cannot overflow. Divergence, a run leaving the envelope [min - e span, max + e span]
+of the training outputs, is flagged and the run held at its last in-envelope value
+(``methods/freerun.py``), as for ``sindy``.
+
+Selection: the toolkit scores ``predict_grid``'s free runs on validation blocks, so
+orders and kernel hyperparameters are chosen on simulation error, not one-step error.
+
+Defaults derived from the data:
+- lags (na = nb, in samples) from {2, 4, 8, 16} where the training data carry them
+  (``freerun.derived_orders``: at most a quarter of the shortest training segment and a
+  tenth as many regressors as rows, at most ``max_lag``); nk = 0 (u(t) is a regressor,
+  which also covers a one-sample delay). Options na, nb, nk fix or list them instead.
+- gamma relative to d on standardised signals and lambda relative to the number of
+  regression rows (lambda = lambda_rel x rows, the noise-to-signal ratio of the
+  one-step residual in the usual per-row convention), so neither grid depends on the
+  signals' units, the sampling rate or the record length.
+- exact KRLS up to 2,000 rows, else 1,000 Nystroem centres on at most 20,000 rows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, log_grid
+from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
+                                         option_orders, padded_past, training_trajectories)
+from enginebench.methods.kernels import check_positive, gaussian, sq_distances
+from enginebench.methods.shifted import ridge_solutions
+
+NAME = "narx"
+LAG_BASE = (2, 4, 8, 16)
+CHUNK_MIB = 32.0
+"""Memory budget of one block of precomputed input exponents (models x segments x steps x centres)."""
+LN2 = math.log(2.0)
+
+
+# --------------------------------------------------------------------------- fitted model
+@dataclass(frozen=True)
+class KernelModel:
+    """One target's f: centres (m, d) in the layout [y(t-na) .. y(t-1), u_1 lags, u_2 lags, ...], standardised."""
+
+    na: int
+    nb: int
+    nk: int
+    centres: np.ndarray
+    beta: np.ndarray
+    gamma: float
+    """Relative gamma; the kernel is exp(-(gamma / d) |z - c|^2)."""
+    lam: float
+    """Relative lambda; the solve used lambda x rows."""
+    target: int
+    """Column of the target in the fitted model's targets."""
+
+    @property
+    def d(self) -> int:
+        return self.centres.shape[1]
+
+    @property
+    def s(self) -> float:
+        """exp(-(gamma/d) D) = 2^(-s D)."""
+        return self.gamma / self.d / LN2
+
+
+@dataclass(frozen=True)
+class NARXFit:
+    """Per-target kernel models plus the standardisation, the envelope and what the solver did."""
+
+    models: tuple[KernelModel, ...]
+    y_mean: np.ndarray
+    y_std: np.ndarray
+    u_mean: np.ndarray
+    u_std: np.ndarray
+    input_names: tuple[str, ...]
+    target_names: tuple[str, ...]
+    envelope: Envelope
+    solver: str
+    n_rows: int
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- regression data
+@dataclass(frozen=True)
+class _Standardised:
+    """Training trajectories in standardised units and the statistics used."""
+
+    traj: list[Trajectory]
+    y_mean: np.ndarray
+    y_std: np.ndarray
+    u_mean: np.ndarray
+    u_std: np.ndarray
+    envelope: Envelope
+
+
+def _standardise(traj: list[Trajectory], envelope: float) -> _Standardised:
+    Y = np.vstack([t.Y for t in traj])
+    U = np.vstack([t.U for t in traj])
+    y_mean, y_std = Y.mean(axis=0), Y.std(axis=0)
+    u_mean, u_std = U.mean(axis=0), U.std(axis=0)
+    y_std[y_std == 0] = 1.0
+    u_std[u_std == 0] = 1.0
+    scaled = [Trajectory(t.id, (t.U - u_mean) / u_std, (t.Y - y_mean) / y_std) for t in traj]
+    return _Standardised(scaled, y_mean, y_std, u_mean, u_std, Envelope.around(Y, envelope))
+
+
+def regressors(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows z(t) = [y(t-na) .. y(t-1), u_j(t-nk) .. u_j(t-nk-nb+1) per input] and y(t), lags inside each segment."""
+    L = max(na, nk + nb - 1)
+    Z, y = [], []
+    for tr in traj:
+        n = len(tr.Y)
+        if n <= L:
+            continue
+        t = np.arange(L, n)
+        cols = [tr.Y[t[:, None] - np.arange(na, 0, -1)[None, :], target]]
+        for j in range(tr.U.shape[1]):
+            cols.append(tr.U[t[:, None] - (nk + np.arange(nb))[None, :], j])
+        Z.append(np.hstack(cols))
+        y.append(tr.Y[L:, target])
+    if not Z:
+        return np.empty((0, na + nb * (traj[0].U.shape[1] if traj else 0))), np.empty(0)
+    return np.vstack(Z), np.concatenate(y)
+
+
+# --------------------------------------------------------------------------- batched free run
+def _input_lags(U: np.ndarray, lags: int, length: int) -> np.ndarray:
+    """(n, c) inputs -> (length, c * (lags + 1)): input j at lag l in column j * (lags + 1) + l.
+
+    Edge padding before the first row; rows past the end repeat the last row.
+    """
+    n, c = U.shape
+    idx = np.clip(np.arange(length)[:, None] - np.arange(lags + 1)[None, :], 0, n - 1)
+    return U[idx].transpose(0, 2, 1).reshape(length, c * (lags + 1))
+
+
+def free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
+             lengths: Sequence[int]) -> np.ndarray:
+    """Simulate every model on every segment at once, in standardised units: (models, segments, max length).
+
+    ``inputs[s]`` (n_s, c) standardised inputs, ``windows[s]`` (N, k) standardised measured
+    outputs of the init window (the same N for every segment), ``lengths[s]`` = n_s.
+    Rows < N are the window (model g reads column ``models[g].target``); from N on each
+    model's own outputs are fed back. Values past a segment's length are undefined.
+    """
+    G, S = len(models), len(inputs)
+    N = len(windows[0])
+    lengths = np.asarray(lengths, dtype=np.int64)
+    T = int(lengths.max())
+    order = np.argsort(-lengths, kind="stable")  # longest first: live segments are a prefix
+    sorted_len = lengths[order]
+    na_max = max(m.na for m in models)
+    lu = max(m.nk + m.nb - 1 for m in models)
+    c = inputs[0].shape[1]
+    du = c * (lu + 1)
+    m_max = max(len(m.beta) for m in models)
+
+    # per-model matrices in the common layout: history part (2 na_max rows: y, y^2 per lag, oldest first)
+    # and input part ([u lags, u lags^2, 1] rows); padded centres have beta = 0 and contribute nothing
+    Cy = np.zeros((G, 2 * na_max, m_max))
+    Cu = np.zeros((G, 2 * du + 1, m_max))
+    beta = np.zeros((G, m_max, 1))
+    for g, m in enumerate(models):
+        s, k = m.s, len(m.beta)
+        cy, cu = m.centres[:, :m.na], m.centres[:, m.na:]
+        for i in range(1, m.na + 1):  # lag i sits at history position na_max - i
+            p = na_max - i
+            Cy[g, 2 * p, :k] = 2 * s * cy[:, m.na - i]
+            Cy[g, 2 * p + 1, :k] = -s
+        for j in range(c):
+            for l in range(m.nb):
+                col = j * (lu + 1) + m.nk + l
+                Cu[g, col, :k] = 2 * s * cu[:, j * m.nb + l]
+                Cu[g, du + col, :k] = -s
+        Cu[g, 2 * du, :k] = -s * (m.centres ** 2).sum(axis=1)
+        beta[g, :k, 0] = m.beta
+
+    Zu = np.zeros((S, T, 2 * du + 1))
+    for r, s_idx in enumerate(order):
+        lag = _input_lags(inputs[s_idx], lu, T)
+        Zu[r, :, :du] = lag
+        Zu[r, :, du:2 * du] = lag ** 2
+        Zu[r, :, 2 * du] = 1.0
+    H = np.zeros((G, S, na_max + T, 2))
+    for r, s_idx in enumerate(order):
+        w = windows[s_idx][:, [m.target for m in models]].T  # (G, N)
+        H[:, r, :na_max, 0] = w[:, :1]
+        H[:, r, na_max:na_max + N, 0] = w
+    H[..., 1] = H[..., 0] ** 2
+
+    steps = max(1, int(CHUNK_MIB * 2**20 // (8 * G * S * m_max)))
+    E_buf = np.empty((G, S, m_max))
+    y_buf = np.empty((G, S, 1))
+    live = S
+    for t0 in range(N, T, steps):
+        t1 = min(T, t0 + steps)
+        live = int(np.searchsorted(-sorted_len, -(t0 + 1), side="right"))  # segments with row t0
+        P = np.matmul(Zu[None, :live, t0:t1].reshape(1, live * (t1 - t0), -1), Cu).reshape(G, live, t1 - t0, m_max)
+        for t in range(t0, t1):
+            while live and sorted_len[live - 1] <= t:
+                live -= 1
+            hist = H[:, :live, t:t + na_max, :].reshape(G, live, 2 * na_max)
+            E = E_buf[:, :live] if live < S else E_buf
+            np.matmul(hist, Cy, out=E)
+            E += P[:, :live, t - t0]
+            np.exp2(E, out=E)
+            y = y_buf[:, :live] if live < S else y_buf
+            np.matmul(E, beta, out=y)
+            H[:, :live, na_max + t, 0] = y[..., 0]
+            np.square(y[..., 0], out=H[:, :live, na_max + t, 1])
+    out = np.empty((G, S, T))
+    out[:, order] = H[:, :, na_max:, 0]
+    return out
+
+
+# --------------------------------------------------------------------------- method
+class NARX(Method):
+    """Kernel NARX: KRLS on lagged outputs and inputs, one step ahead; predicted in free run."""
+
+    name = NAME
+    family = "data-driven"
+    modes = frozenset({"simulation"})
+    summary = ("kernel NARX: Gaussian KRLS on lagged outputs and inputs (Nystroem for large sets), "
+               "selected and predicted in free run")
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "na": None,  # output lags (samples): None = tied to nb on a derived grid, a number or a list
+            "nb": None,  # input lags per input (>= 1)
+            "nk": 0,  # input delay (samples): u(t - nk) is the newest input regressor
+            "max_lag": 16,  # cap of the derived lag grid
+            "gamma_grid": (-1.5, 0.0, 4),  # log10 of gamma relative to the regressor count d
+            "lambda_grid": (-6.0, -2.0, 3),  # log10 of lambda relative to the number of regression rows
+            "exact_max_rows": 2000,  # exact KRLS up to this many rows, Nystroem + FALKON above
+            "centres": 1000,  # Nystroem centres (cost of one simulated step)
+            "max_rows": 20000,  # regression rows used (uniform subsample above; 0 = all)
+            "envelope": 10.0,  # divergence: leaving [min - e span, max + e span] of the training outputs
+            "device": "cpu",  # FALKON's device: 'cpu', 'cuda' or 'auto'
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        o = self.options
+        self._orders = {key: option_orders(NAME, key, o[key]) for key in ("na", "nb", "nk")}
+        if self._orders["nb"] is not None and 0 in self._orders["nb"]:
+            raise MethodError(f"method {NAME!r}: option nb={o['nb']!r} must be >= 1 (at least one lag of each input)")
+        if self._orders["na"] is not None and 0 in self._orders["na"]:
+            raise MethodError(f"method {NAME!r}: option na={o['na']!r} must be >= 1 (a NARX feeds back its output; "
+                              "use nfir for a model of inputs only)")
+        for key in ("gamma_grid", "lambda_grid"):
+            check_log_grid_option(NAME, key, o[key])
+        for key, low in (("max_lag", 1), ("exact_max_rows", 1), ("centres", 1), ("max_rows", 0)):
+            v = o[key]
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < low:
+                raise MethodError(f"method {NAME!r}: option {key} must be a whole number >= {low}, got {v!r}")
+        env = o["envelope"]
+        if isinstance(env, (bool, np.bool_)) or not isinstance(env, (int, float)) or not np.isfinite(env) or env <= 0:
+            raise MethodError(f"method {NAME!r}: option envelope must be a positive number, got {env!r}")
+        if o["device"] not in ("cpu", "cuda", "auto") and not str(o["device"]).startswith("cuda:"):
+            raise MethodError(f"method {NAME!r}: option device must be 'cpu', 'cuda[:i]' or 'auto', got {o['device']!r}")
+
+    # -- grid ---------------------------------------------------------------------------------
+    def search_space(self, data: Samples) -> SearchSpace:
+        """Lags (tied na = nb unless given), nk, gamma and lambda (module docstring)."""
+        sizes = [len(s) for s in data.segments] or [0]
+        derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_lag"]),
+                                 LAG_BASE)
+        space: SearchSpace = {}
+        na, nb = self._orders["na"], self._orders["nb"]
+        if na is None and nb is None:
+            space["lags"] = np.array(derived)
+        else:
+            space["na"] = np.array(na if na is not None else derived)
+            space["nb"] = np.array(nb if nb is not None else derived)
+        space["nk"] = np.array(self._orders["nk"])
+        space["gamma"] = log_grid(*self._grid("gamma_grid"))
+        space["lambda"] = log_grid(*self._grid("lambda_grid"))
+        return space
+
+    def _grid(self, key: str) -> tuple[float, float, int]:
+        lo, hi, num = self.options[key]
+        return float(lo), float(hi), int(num)
+
+    @staticmethod
+    def _point(params: Params) -> tuple[int, int, int, float, float]:
+        """(na, nb, nk, gamma, lambda) of a grid point, checked."""
+        keys = set(params)
+        allowed = {"lags", "na", "nb", "nk", "gamma", "lambda"}
+        if keys - allowed:
+            raise MethodError(f"method {NAME!r}: unknown hyperparameter(s) {', '.join(sorted(keys - allowed))}; "
+                              "it has lags (or na and nb), nk, gamma, lambda")
+        na = params.get("na", params.get("lags"))
+        nb = params.get("nb", params.get("lags"))
+        missing = [k for k, v in (("na (or lags)", na), ("nb (or lags)", nb), ("nk", params.get("nk")),
+                                  ("gamma", params.get("gamma")), ("lambda", params.get("lambda"))) if v is None]
+        if missing:
+            raise MethodError(f"method {NAME!r}: hyperparameter(s) {', '.join(missing)} missing from {dict(params)!r}")
+        orders = []
+        for key, v, low in (("na", na, 1), ("nb", nb, 1), ("nk", params["nk"], 0)):
+            if isinstance(v, (bool, np.bool_)) or np.ndim(v) or not float(v).is_integer() or v < low:
+                raise MethodError(f"method {NAME!r}: hyperparameter {key} must be a whole number >= {low}, got {v!r}")
+            orders.append(int(v))
+        gamma = float(check_positive(params["gamma"], "gamma")[0])
+        lam = float(check_positive(params["lambda"], "lambda")[0])
+        return orders[0], orders[1], orders[2], gamma, lam
+
+    # -- fitting ------------------------------------------------------------------------------------
+    def _rows(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        cap = int(self.options["max_rows"])
+        if cap == 0 or n <= cap:
+            return np.arange(n)
+        return np.sort(rng.choice(n, size=cap, replace=False))
+
+    def _solve(self, Z: np.ndarray, y: np.ndarray, gamma: float, lambdas: np.ndarray, rng: np.random.Generator
+               ) -> tuple[np.ndarray, np.ndarray, str, dict[str, Any]]:
+        """Centres (m, d) and coefficients (L, m) for every relative lambda at one relative gamma."""
+        n, d = Z.shape
+        g_abs = gamma / d
+        lam_abs = np.asarray(lambdas, dtype=np.float64) * n
+        if n <= int(self.options["exact_max_rows"]):
+            alpha, _ = ridge_solutions(gaussian(sq_distances(Z), g_abs), y[:, None], lam_abs, overwrite=True)
+            return Z, np.moveaxis(alpha[:, :, 0], 1, 0), "exact", {}
+        from enginebench.methods.falkon import DEFAULT_BLOCK_MIB, DEFAULT_CACHE_MIB, _prepare, _solve, resolve_device
+
+        device = resolve_device(str(self.options["device"]))
+        prob = _prepare(Z, int(self.options["centres"]), g_abs, torch.float64, device, None, DEFAULT_BLOCK_MIB,
+                        DEFAULT_CACHE_MIB, rng)
+        betas, info = _solve(prob, torch.as_tensor(y[:, None], device=device), lam_abs, 50, 1e-6)
+        residual = float(info["residuals"].max())
+        return (Z[prob.centre_rows], betas[:, :, 0].cpu().numpy(), "nystroem",
+                {"cg_iterations": int(info["iterations"]), "cg_residual": residual})
+
+    def _models(self, std: _Standardised, k: int, points: Sequence[tuple[int, int, int, float, float]],
+                rng: np.random.Generator) -> tuple[list[list[KernelModel]], str, int, dict[str, Any]]:
+        """Kernel models for every point (one per target), sharing regressors per order and solves per gamma."""
+        out: list[list[KernelModel | None]] = [[None] * k for _ in points]
+        solver, n_rows, info = "exact", 0, {}
+        by_orders: dict[tuple[int, int, int], list[int]] = {}
+        for i, (na, nb, nk, _, _) in enumerate(points):
+            by_orders.setdefault((na, nb, nk), []).append(i)
+        for (na, nb, nk), members in by_orders.items():
+            for target in range(k):
+                Z, y = regressors(std.traj, target, na, nb, nk)
+                if len(y) < 2:
+                    longest = max(len(tr.Y) for tr in std.traj)
+                    raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {len(y)} regression rows "
+                                      f"(longest training segment {longest} rows); use fewer lags")
+                rows = self._rows(len(y), rng)
+                Z, y = Z[rows], y[rows]
+                n_rows = len(y)
+                gammas = np.array([points[i][3] for i in members])
+                for gamma in dict.fromkeys(gammas.tolist()):
+                    idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
+                    lams = np.array([points[i][4] for i in idx])
+                    centres, betas, solver, info = self._solve(Z, y, gamma, lams, rng)
+                    for i, b, lam in zip(idx, betas, lams):
+                        out[i][target] = KernelModel(na=na, nb=nb, nk=nk, centres=centres, beta=b, gamma=gamma,
+                                                     lam=float(lam), target=target)
+        return out, solver, n_rows, info  # type: ignore[return-value]
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> NARXFit:
+        """One step ahead on the training segments; the kernel rows and centres are drawn with ``rng``."""
+        self.check_mode(train.mode)
+        point = self._point(params)
+        std = _standardise(training_trajectories(NAME, train), float(self.options["envelope"]))
+        models, solver, n_rows, info = self._models(std, len(train.target_names), [point], rng)
+        return NARXFit(models=tuple(models[0]), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean,
+                       u_std=std.u_std, input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+                       envelope=std.envelope, solver=solver, n_rows=n_rows, info=info)
+
+    # -- prediction ------------------------------------------------------------------------------
+    def _simulate(self, fits: Sequence[NARXFit], data: Samples) -> list[tuple[list[np.ndarray], np.ndarray]]:
+        """Free runs of every fit (all of them share the standardisation) on ``data``: per fit (arrays, diverged)."""
+        first = fits[0]
+        check_prediction_inputs(NAME, data, len(first.input_names))
+        k = len(first.target_names)
+        models = [m for f in fits for m in f.models]
+        results: list[list[np.ndarray | None]] = [[None] * len(data.segments) for _ in fits]
+        flags = [np.zeros(len(data.segments), dtype=bool) for _ in fits]
+        windows = [init_window(NAME, s, k) for s in data.segments]
+        by_window: dict[int, list[int]] = {}
+        for i, w in enumerate(windows):
+            by_window.setdefault(len(w), []).append(i)
+        for N, members in by_window.items():
+            U = [(np.asarray(data.segments[i].U, dtype=np.float64) - first.u_mean) / first.u_std for i in members]
+            W = [(windows[i] - first.y_mean) / first.y_std for i in members]
+            lengths = [len(data.segments[i].t) for i in members]
+            runs = free_run(models, U, W, lengths)  # (fits * k, segments, T)
+            for f_idx, f in enumerate(fits):
+                for r, i in enumerate(members):
+                    n = lengths[r]
+                    traj = runs[f_idx * k:(f_idx + 1) * k, r, :n].T * f.y_std + f.y_mean
+                    traj[:N] = windows[i]  # the window is measured (exactly, not through the scaling)
+                    traj, bad = f.envelope.clip_run(traj, N)
+                    results[f_idx][i] = traj[data.segments[i].rows]
+                    flags[f_idx][i] = bad
+        return [(arrays, fl) for arrays, fl in zip(results, flags)]  # type: ignore[misc]
+
+    def predict(self, fitted: NARXFit, data: Samples) -> SegmentPredictions:
+        """Free run of every segment from its init window, all segments batched."""
+        if not data.segments:
+            return SegmentPredictions([], [])
+        arrays, flags = self._simulate([fitted], data)[0]
+        return SegmentPredictions(arrays, flags)
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Free runs of ``data`` for every grid point, (n_grid, rows, targets), all simulated in one time loop.
+
+        Regressors are built once per order, kernel solves shared per (order, gamma)
+        across lambdas; the grid points' free runs are one batch (models x segments).
+        """
+        self.check_mode(train.mode)
+        points = [self._point(p) for p in grid]
+        k = len(train.target_names)
+        out = np.empty((len(grid), len(data), k))
+        if not points or not data.segments:
+            return out
+        std = _standardise(training_trajectories(NAME, train), float(self.options["envelope"]))
+        models, solver, n_rows, info = self._models(std, k, points, rng)
+        fits = [NARXFit(models=tuple(ms), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean, u_std=std.u_std,
+                        input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+                        envelope=std.envelope, solver=solver, n_rows=n_rows) for ms in models]
+        for i, (arrays, _) in enumerate(self._simulate(fits, data)):
+            out[i] = np.concatenate(arrays)
+        return out
+
+    def describe(self, fitted: NARXFit) -> dict[str, Any]:
+        m = fitted.models[0]
+        return {
+            "na": m.na, "nb": m.nb, "nk": m.nk,
+            "gamma_relative": m.gamma, "gamma": m.gamma / m.d,
+            "lambda_relative": m.lam, "lambda": m.lam * fitted.n_rows,
+            "regressors": m.d,
+            "solver": fitted.solver,
+            "centres": int(len(m.beta)),
+            "regression_rows": fitted.n_rows,
+            "model": "y(t) = sum_i beta_i exp(-gamma |z(t) - c_i|^2), z(t) = standardised [y(t-na)..y(t-1), "
+                     "u(t-nk)..u(t-nk-nb+1)], one model per target",
+            "standardisation": {"y_mean": fitted.y_mean.tolist(), "y_std": fitted.y_std.tolist(),
+                                "u_mean": fitted.u_mean.tolist(), "u_std": fitted.u_std.tolist()},
+            "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
+            **fitted.info,
+        }

@@ -1,0 +1,194 @@
+"""Kernel NARX: the batched free run against a plain per-step reference, recovery of a known nonlinear
+system's free run, no measured output read after the init window, grid batching, divergence flags."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from enginebench.datasets.dataset import Dataset
+from enginebench.datasets.samples import RawSegments, SamplePool, Samples
+from enginebench.datasets.schema import Schema
+from enginebench.errors import MethodError
+from enginebench.methods.base import SegmentPredictions, grid_points
+from enginebench.methods.freerun import Envelope
+from enginebench.methods.narx import NARX, NARXFit
+from enginebench.testing import check_method
+
+PARAMS = {"lags": 2, "nk": 0, "gamma": 0.3, "lambda": 1e-6}
+
+
+def system(u: np.ndarray) -> np.ndarray:
+    """y(t) = 0.5 y(t-1) - 0.2 y(t-2) - 0.1 y(t-1)^2 + tanh(u(t-1)) + 0.1 u(t-2)^2, from rest."""
+    y = np.zeros(len(u))
+    for t in range(2, len(u)):
+        y[t] = 0.5 * y[t - 1] - 0.2 * y[t - 2] - 0.1 * y[t - 1] ** 2 + np.tanh(u[t - 1]) + 0.1 * u[t - 2] ** 2
+    return y
+
+
+def nonlinear_raw(n_seg: int = 4, n: int = 300, seed: int = 0, lengths: tuple[int, ...] | None = None) -> RawSegments:
+    rng = np.random.default_rng(seed)
+    frames = []
+    for k, size in enumerate(lengths or (n,) * n_seg):
+        u = rng.uniform(-1.5, 1.5, size)
+        frames.append(pd.DataFrame({"segment": f"s{k}", "time": np.arange(size) + 1000.0 * k, "u": u,
+                                    "y": system(u) + 1.0}))
+    ds = Dataset("nl", pd.concat(frames, ignore_index=True), Schema.from_roles({"u": "input", "y": "output"}), 1.0)
+    return RawSegments.from_dataset(ds)
+
+
+def samples(raw: RawSegments, init_samples: int = 0) -> Samples:
+    return SamplePool(raw, ["y"], "simulation", init_samples=init_samples).materialize()
+
+
+@pytest.fixture(scope="module")
+def data() -> tuple[Samples, Samples]:
+    return samples(nonlinear_raw(3, 300, seed=0)), samples(nonlinear_raw(2, 300, seed=1), init_samples=5)
+
+
+@pytest.fixture(scope="module")
+def fitted(data) -> NARXFit:
+    return NARX().fit(data[0], PARAMS, np.random.default_rng(0))
+
+
+def reference_run(fit: NARXFit, U: np.ndarray, window: np.ndarray) -> np.ndarray:
+    """The free run written out step by step: standardise, build z(t) (edge padded), evaluate the kernel sum."""
+    m = fit.models[0]
+    ys = list((window[:, 0] - fit.y_mean[0]) / fit.y_std[0])
+    us = (U[:, 0] - fit.u_mean[0]) / fit.u_std[0]
+    for t in range(len(window), len(U)):
+        z = np.r_[[ys[max(t - i, 0)] for i in range(m.na, 0, -1)], [us[max(t - m.nk - l, 0)] for l in range(m.nb)]]
+        ys.append(float(np.exp(-m.gamma / m.d * ((m.centres - z) ** 2).sum(axis=1)) @ m.beta))
+    return np.array(ys) * fit.y_std[0] + fit.y_mean[0]
+
+
+def test_free_run_equals_the_step_by_step_reference(data, fitted):
+    _, test = data
+    pred = NARX().predict(fitted, test.without_targets())
+    assert isinstance(pred, SegmentPredictions) and not pred.diverged.any()
+    for seg, p in zip(test.segments, pred):
+        ref = reference_run(fitted, seg.U, seg.y_init)
+        np.testing.assert_allclose(p[:, 0], ref[5:], rtol=0, atol=1e-10)
+
+
+def test_nystroem_free_run_equals_the_reference_too(data):
+    train, test = data
+    m = NARX(exact_max_rows=100, centres=60, nk=1, na=3, nb=2)
+    fit = m.fit(train, {"na": 3, "nb": 2, "nk": 1, "gamma": 0.5, "lambda": 1e-4}, np.random.default_rng(3))
+    assert fit.solver == "nystroem" and fit.models[0].centres.shape == (60, 5)
+    seg = test.segments[1]
+    pred = m.predict(fit, test.without_targets())[1][:, 0]
+    np.testing.assert_allclose(pred, reference_run(fit, seg.U, seg.y_init)[5:], rtol=0, atol=1e-10)
+
+
+def test_window_shorter_than_the_lags_is_padded_with_y0(fitted):
+    test = samples(nonlinear_raw(1, 120, seed=2))  # no init window: y0 only, two output lags
+    seg = test.segments[0]
+    pred = NARX().predict(fitted, test.without_targets())[0][:, 0]
+    assert pred[0] == seg.y0[0]
+    np.testing.assert_allclose(pred, reference_run(fitted, seg.U, seg.y0[None, :]), rtol=0, atol=1e-10)
+
+
+def test_recovers_the_free_run_of_a_known_nonlinear_system(data, fitted):
+    """Trained one step ahead on 900 noise-free rows; the free run on new inputs stays within 10 % of the std."""
+    _, test = data
+    pred = np.concatenate(NARX().predict(fitted, test.without_targets()))
+    rmse = np.sqrt(np.mean((pred - test.y) ** 2))
+    assert rmse < 0.1 * test.y.std()
+
+
+def test_never_reads_a_measured_output_after_the_init_window(data, fitted):
+    _, test = data
+    before = NARX().predict(fitted, test)  # targets present: they must not be read
+    changed = replace(test, segments=tuple(replace(s, y=s.y + np.random.default_rng(1).normal(50, 10, s.y.shape))
+                                           for s in test.segments))
+    after = NARX().predict(fitted, changed)
+    for a, b in zip(before, after):
+        np.testing.assert_array_equal(a, b)
+    seg = test.segments[0]
+    moved = replace(test, segments=(replace(seg, y_init=seg.y_init + 0.5), *test.segments[1:]))
+    moved_pred = NARX().predict(fitted, moved)
+    assert not np.allclose(moved_pred[0], before[0])
+    np.testing.assert_array_equal(moved_pred[1], before[1])
+
+
+def test_segments_of_different_lengths_batch_like_one_at_a_time(fitted):
+    test = samples(nonlinear_raw(lengths=(80, 200, 130), seed=4), init_samples=3).without_targets()
+    together = NARX().predict(fitted, test)
+    for k, seg in enumerate(test.segments):
+        alone = NARX().predict(fitted, replace(test, segments=(seg,)))
+        np.testing.assert_allclose(together[k], alone[0], rtol=0, atol=1e-10)
+
+
+def test_predict_grid_batches_the_candidates_like_fit_then_predict(data):
+    train, test = data
+    m = NARX()
+    grid = grid_points({"lags": np.array([1, 2]), "nk": np.array([0]), "gamma": np.array([0.1, 1.0]),
+                        "lambda": np.array([1e-5, 1e-2])})
+    out = m.predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert out.shape == (len(grid), len(test), 1)
+    for i, p in enumerate(grid):
+        one = np.concatenate(m.predict(m.fit(train, p, np.random.default_rng(0)), test.without_targets()))
+        np.testing.assert_allclose(out[i], one, rtol=0, atol=1e-9)
+
+
+def test_a_run_leaving_the_envelope_is_held_and_flagged(data, fitted):
+    _, test = data
+    view = test.without_targets()
+    free = NARX().predict(fitted, view)
+    tight = replace(fitted, envelope=Envelope(np.array([0.9]), np.array([1.1])))
+    pred = NARX().predict(tight, view)
+    assert pred.diverged.all() and not free.diverged.any()
+    for p, f, seg in zip(pred, free, view.segments):
+        first = int(np.argmax((f[:, 0] < 0.9) | (f[:, 0] > 1.1)))
+        np.testing.assert_array_equal(p[:first], f[:first])
+        held = f[first - 1, 0] if first else seg.y_init[-1, 0]  # the last value inside (or the window's last)
+        assert (p[first:, 0] == held).all()
+
+
+def test_grid_is_derived_from_the_data(data):
+    train, _ = data
+    space = NARX().search_space(train)
+    assert space["lags"].tolist() == [2, 4, 8, 16]  # 300-row segments: lag <= 75, 2 lag + 1 <= 90 regressors
+    assert space["nk"].tolist() == [0] and len(space["gamma"]) == 4 and len(space["lambda"]) == 3
+    short = NARX().search_space(samples(nonlinear_raw(2, 40)))
+    assert short["lags"].tolist() == [2]  # lag <= 10 and 2 lag + 1 <= 8 regressors
+    fixed = NARX(na=3, nb=[1, 2]).search_space(train)
+    assert "lags" not in fixed and fixed["na"].tolist() == [3] and fixed["nb"].tolist() == [1, 2]
+
+
+@pytest.mark.parametrize("options, fragment", [
+    ({"na": 0}, "option na=0 must be >= 1"),
+    ({"nb": [0, 2]}, r"option nb=\[0, 2\] must be >= 1"),
+    ({"gamma_grid": (1, 0)}, "option gamma_grid=.* must be"),
+    ({"centres": 0}, "option centres must be a whole number >= 1"),
+    ({"device": "tpu"}, "option device must be"),
+])
+def test_bad_options_are_one_line(options, fragment):
+    with pytest.raises(MethodError, match=fragment):
+        NARX(**options)
+
+
+def test_bad_hyperparameters_and_inputs_are_one_line(data, fitted):
+    train, test = data
+    with pytest.raises(MethodError, match="hyperparameter na must be a whole number >= 1"):
+        NARX().fit(train, {**PARAMS, "lags": 0}, np.random.default_rng(0))
+    with pytest.raises(MethodError, match="unknown hyperparameter"):
+        NARX().fit(train, {**PARAMS, "alpha": 1}, np.random.default_rng(0))
+    wide = replace(test, segments=tuple(replace(s, U=np.hstack([s.U, s.U]), X=np.hstack([s.X, s.X]))
+                                        for s in test.segments))
+    with pytest.raises(MethodError, match="has 2 feature columns but the model was fitted on 1 inputs"):
+        NARX().predict(fitted, wide.without_targets())
+
+
+def test_describe_names_the_model(fitted):
+    d = NARX().describe(fitted)
+    assert (d["na"], d["nb"], d["nk"], d["regressors"], d["solver"]) == (2, 2, 0, 4, "exact")
+    assert d["gamma"] == pytest.approx(0.3 / 4) and d["lambda"] == pytest.approx(1e-6 * d["regression_rows"])
+
+
+def test_conformance():
+    check_method(NARX, {"gamma_grid": (-1, 0, 2), "lambda_grid": (-4, -2, 2)})
