@@ -389,7 +389,8 @@ class NARX(Method):
                     lams = np.array([points[i][4] for i in idx])
                     centres, betas, solver, info = self._solve(Z, y, gamma, lams, rng)
                     for i, b, lam in zip(idx, betas, lams):
-                        out[i][target] = KernelModel(na=na, nb=nb, nk=nk, centres=centres, beta=b, gamma=gamma,
+                        out[i][target] = KernelModel(na=na, nb=nb, nk=nk, centres=np.ascontiguousarray(centres),
+                                                     beta=np.ascontiguousarray(b), gamma=gamma,
                                                      lam=float(lam), target=target)
         return out, solver, n_rows, info  # type: ignore[return-value]
 

@@ -1,0 +1,407 @@
+"""Peers: the field's maintained identification libraries as thin adapters under enginebench's protocol.
+
+Optional: ``pip install "enginebench[peers]"`` installs them. The adapters call the
+libraries' public APIs and add only what the protocol needs: whole training segments
+in, free-run predictions from the state initialisation window out, divergence flags,
+and hyperparameters searched by the toolkit's selection on free-run error.
+
+- ``sysidentpy-narx``: SysIdentPy's polynomial NARX, structure by FROLS (forward
+  regression orthogonal least squares, the number of terms by AIC), parameters by
+  least squares. Searched: polynomial degree and lags (``ylag = xlag``, samples;
+  SysIdentPy's input lags start at 1). Free run through SysIdentPy's ``predict`` with the
+  last ``max_lag`` outputs of the init window as initial conditions (edge padded when
+  the window is shorter).
+- ``n4sid``: a linear state-space model x+ = A x + B u, y = C x + D u by subspace
+  identification (the ``nfoursid`` package, PO-MOESP/N4SID). Searched: the state order.
+  The initial state is the least-squares fit of the init window's measured outputs given
+  its inputs (y_t = C A^t x0 + forced response); with y0 alone it is the minimum-norm
+  state reproducing y0.
+
+Both libraries take one trajectory: several training segments are concatenated (the few
+samples after each boundary then mix two records; fine for a few long records, stated
+here because it is not the libraries' fault). Signals are standardised with training
+statistics before they are handed over, for the libraries' numerical conditioning; the
+results are returned in the data's units.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any, ClassVar, Sequence
+
+import numpy as np
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
+                                         option_orders, padded_past, training_trajectories)
+
+INSTALL = 'pip install "enginebench[peers]"'
+
+
+def _missing(module: str) -> str | None:
+    """Why the peer cannot run here (its package is not installed), or None."""
+    try:
+        found = importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a broken or blocked installation counts as absent
+        found = False
+    return None if found else f"needs the optional package {module!r}: {INSTALL}"
+
+
+class PeerMethod(Method):
+    """A method backed by an optional package; refuses to be built (one line, exit 2) when it is absent."""
+
+    family = "data-driven"
+    modes = frozenset({"simulation"})
+    package: ClassVar[str] = ""
+    peer_summary: ClassVar[str] = ""
+
+    @classmethod
+    def available(cls) -> str | None:
+        """None when the method can run; otherwise why not and the install command."""
+        return _missing(cls.package)
+
+    def __init__(self, **options: Any) -> None:
+        reason = self.available()
+        if reason:
+            raise MethodError(f"method {self.name!r} {reason}")
+        super().__init__(**options)
+        env = self.options["envelope"]
+        if isinstance(env, (bool, np.bool_)) or not isinstance(env, (int, float)) or not np.isfinite(env) or env <= 0:
+            raise MethodError(f"method {self.name!r}: option envelope must be a positive number, got {env!r}")
+
+
+def _summary(package: str, text: str) -> str:
+    reason = _missing(package)
+    return text if reason is None else f"UNAVAILABLE ({INSTALL}): {text}"
+
+
+@dataclass(frozen=True)
+class _Scaling:
+    u_mean: np.ndarray
+    u_std: np.ndarray
+    y_mean: np.ndarray
+    y_std: np.ndarray
+
+    @classmethod
+    def of(cls, traj: Sequence[Trajectory]) -> "_Scaling":
+        U, Y = np.vstack([t.U for t in traj]), np.vstack([t.Y for t in traj])
+        u_std, y_std = U.std(axis=0), Y.std(axis=0)
+        return cls(U.mean(axis=0), np.where(u_std > 0, u_std, 1.0), Y.mean(axis=0), np.where(y_std > 0, y_std, 1.0))
+
+    def u(self, U: np.ndarray) -> np.ndarray:
+        return (U - self.u_mean) / self.u_std
+
+    def y(self, Y: np.ndarray) -> np.ndarray:
+        return (Y - self.y_mean) / self.y_std
+
+    def y_back(self, Y: np.ndarray) -> np.ndarray:
+        return Y * self.y_std + self.y_mean
+
+
+def _whole(traj: Sequence[Trajectory], scaling: _Scaling) -> tuple[np.ndarray, np.ndarray]:
+    """Standardised training segments concatenated: inputs (n, c), outputs (n, k)."""
+    return scaling.u(np.vstack([t.U for t in traj])), scaling.y(np.vstack([t.Y for t in traj]))
+
+
+def _predictions(who: str, data: Samples, k: int, envelope: Envelope, run) -> SegmentPredictions:
+    """Per segment: ``run(U, window)`` gives the (n, k) trajectory (window rows included); envelope applied."""
+    arrays, flags = [], []
+    for s in data.segments:
+        window = init_window(who, s, k)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            traj = np.asarray(run(np.asarray(s.U, dtype=np.float64), window), dtype=np.float64)
+        traj[:len(window)] = window
+        traj, bad = envelope.clip_run(traj, len(window))
+        arrays.append(traj[s.rows])
+        flags.append(bad)
+    return SegmentPredictions(arrays, flags)
+
+
+def _check_orders(who: str, options: dict[str, Any], key: str, low: int) -> list[int] | None:
+    values = option_orders(who, key, options[key])
+    if values is not None and min(values) < low:
+        raise MethodError(f"method {who!r}: option {key}={options[key]!r} must be >= {low}")
+    return values
+
+
+def _whole_number(who: str, params: Params, key: str, low: int) -> int:
+    if key not in params:
+        raise MethodError(f"method {who!r}: hyperparameter {key} missing from {dict(params)!r}")
+    v = params[key]
+    if isinstance(v, (bool, np.bool_)) or np.ndim(v) or not float(v).is_integer() or v < low:
+        raise MethodError(f"method {who!r}: hyperparameter {key} must be a whole number >= {low}, got {v!r}")
+    return int(v)
+
+
+# --------------------------------------------------------------------------- SysIdentPy
+@dataclass(frozen=True)
+class SysIdentPyFit:
+    models: tuple[Any, ...]
+    """One fitted ``sysidentpy`` FROLS model per target."""
+    degree: int
+    lags: int
+    scaling: _Scaling
+    envelope: Envelope
+    input_names: tuple[str, ...]
+    target_names: tuple[str, ...]
+
+
+class SysIdentPyNARX(PeerMethod):
+    """SysIdentPy's polynomial NARX (FROLS structure selection, least squares), simulated in free run."""
+
+    name = "sysidentpy-narx"
+    package = "sysidentpy"
+    summary = _summary("sysidentpy", "peer: SysIdentPy polynomial NARX, FROLS structure selection (degree, lags "
+                                     "searched), least squares, free run")
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "degrees": (1, 2, 3),  # polynomial degrees searched
+            "lags": None,  # ylag = xlag (samples): None = derived {1, 2, 4} within what the data carry
+            "n_info_values": 30,  # FROLS considers at most this many terms (AIC picks the count)
+            "info_criteria": "aic",
+            "envelope": 10.0,
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        o = self.options
+        self._lags = _check_orders(self.name, o, "lags", 1)
+        degrees = option_orders(self.name, "degrees", o["degrees"])
+        if not degrees or min(degrees) < 1 or max(degrees) > 5:
+            raise MethodError(f"method {self.name!r}: option degrees={o['degrees']!r} must list degrees from 1 to 5")
+        self._degrees = degrees
+        if isinstance(o["n_info_values"], bool) or not isinstance(o["n_info_values"], int) or o["n_info_values"] < 1:
+            raise MethodError(f"method {self.name!r}: option n_info_values must be a whole number >= 1, "
+                              f"got {o['n_info_values']!r}")
+        if o["info_criteria"] not in ("aic", "aicc", "bic", "fpe", "lilc"):
+            raise MethodError(f"method {self.name!r}: option info_criteria must be one of aic, aicc, bic, fpe, lilc, "
+                              f"got {o['info_criteria']!r}")
+
+    def search_space(self, data: Samples) -> SearchSpace:
+        sizes = [len(s) for s in data.segments] or [0]
+        lags = self._lags or derived_orders(min(sizes), sum(sizes), len(data.input_names), 4, (1, 2, 4))
+        return {"degree": np.array(self._degrees), "lags": np.array(lags)}
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> SysIdentPyFit:
+        """FROLS per target on the concatenated standardised training segments. ``rng`` is not drawn from."""
+        from sysidentpy.basis_function import Polynomial
+        from sysidentpy.model_structure_selection import FROLS
+        from sysidentpy.parameter_estimation import LeastSquares
+
+        self.check_mode(train.mode)
+        degree = _whole_number(self.name, params, "degree", 1)
+        lags = _whole_number(self.name, params, "lags", 1)
+        traj = training_trajectories(self.name, train)
+        scaling = _Scaling.of(traj)
+        U, Y = _whole(traj, scaling)
+        models = []
+        for j in range(Y.shape[1]):
+            model = FROLS(order_selection=True, n_info_values=int(self.options["n_info_values"]), ylag=lags,
+                          xlag=[list(range(1, lags + 1))] * U.shape[1] if U.shape[1] > 1 else lags,
+                          info_criteria=str(self.options["info_criteria"]), estimator=LeastSquares(),
+                          basis_function=Polynomial(degree=degree), model_type="NARMAX")
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    model.fit(X=U, y=Y[:, j:j + 1])
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                raise MethodError(f"method {self.name!r}: SysIdentPy could not fit degree {degree}, lags {lags}: "
+                                  f"{str(exc).splitlines()[0]}") from exc
+            models.append(model)
+        env = Envelope.around(np.vstack([t.Y for t in traj]), float(self.options["envelope"]))
+        return SysIdentPyFit(tuple(models), degree, lags, scaling, env, tuple(train.input_names),
+                             tuple(train.target_names))
+
+    def predict(self, fitted: SysIdentPyFit, data: Samples) -> SegmentPredictions:
+        """SysIdentPy's free run from the last max_lag measured outputs of each init window."""
+        check_prediction_inputs(self.name, data, len(fitted.input_names))
+        sc = fitted.scaling
+
+        def run(U: np.ndarray, window: np.ndarray) -> np.ndarray:
+            N, n = len(window), len(U)
+            out = np.empty((n, window.shape[1]))
+            Us, Ws = sc.u(U), sc.y(window)
+            for j, model in enumerate(fitted.models):
+                lag = int(model.max_lag)
+                # the simulation starts at row N: its initial conditions are rows N - lag .. N - 1 (edge padded)
+                start = N - lag
+                pad = max(0, -start)
+                X = padded_past(Us, pad)[start + pad:]
+                y_init = padded_past(Ws[:, j:j + 1], pad)[start + pad:start + pad + lag]
+                yhat = np.asarray(model.predict(X=X, y=y_init)).reshape(-1)
+                out[N:, j] = yhat[lag:lag + n - N]
+            return sc.y_back(out)
+
+        return _predictions(self.name, data, len(fitted.target_names), fitted.envelope, run)
+
+    def describe(self, fitted: SysIdentPyFit) -> dict[str, Any]:
+        from sysidentpy.utils.display_results import results
+
+        out: dict[str, Any] = {"degree": fitted.degree, "lags": fitted.lags, "package": "sysidentpy",
+                               "units": "standardised signals (training mean and std)", "targets": {}}
+        for name, model in zip(fitted.target_names, fitted.models):
+            rows = results(model.final_model, model.theta, model.err, model.n_terms, err_precision=6, dtype="dec")
+            out["targets"][name] = {"terms": [[r[0], float(r[1])] for r in rows], "n_terms": len(rows)}
+        return out
+
+
+# --------------------------------------------------------------------------- N4SID (nfoursid)
+@dataclass(frozen=True)
+class StateSpaceFit:
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    order: int
+    block_rows: int
+    scaling: _Scaling
+    envelope: Envelope
+    input_names: tuple[str, ...]
+    target_names: tuple[str, ...]
+
+
+def simulate_state_space(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, x0: np.ndarray,
+                         U: np.ndarray) -> np.ndarray:
+    """y_t = C x_t + D u_t, x_{t+1} = A x_t + B u_t from x0 over the inputs U (n, c): (n, k)."""
+    n = len(U)
+    X = np.empty((n, len(x0)))
+    BU = U @ B.T
+    x = np.asarray(x0, dtype=np.float64)
+    At = A.T
+    for t in range(n):
+        X[t] = x
+        x = x @ At + BU[t]
+    return X @ C.T + U @ D.T
+
+
+def initial_state(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, U: np.ndarray,
+                  window: np.ndarray) -> np.ndarray:
+    """Least-squares x0 from the window's outputs (N, k) and inputs U[:N]: min |O x0 - (y - forced)|, min-norm."""
+    N, nx = len(window), A.shape[0]
+    forced = simulate_state_space(A, B, C, D, np.zeros(nx), U[:N])
+    O = np.empty((N, C.shape[0], nx))
+    M = C.copy()
+    for t in range(N):
+        O[t] = M
+        M = M @ A
+    x0, *_ = np.linalg.lstsq(O.reshape(N * C.shape[0], nx), (window - forced).reshape(-1), rcond=None)
+    return x0
+
+
+class N4SID(PeerMethod):
+    """Linear state-space model by subspace identification (nfoursid), simulated from an estimated initial state."""
+
+    name = "n4sid"
+    package = "nfoursid"
+    summary = _summary("nfoursid", "peer: linear state-space model by subspace identification (nfoursid), order "
+                                   "searched, state estimated on the init window, free run")
+
+    @classmethod
+    def default_options(cls) -> dict[str, Any]:
+        return {
+            "orders": None,  # state orders searched: None = derived {1, 2, 4, 8, 16} within what the data carry
+            "block_rows": None,  # Hankel block rows: None = 1.5 x the largest order / outputs, at least 2
+            "envelope": 10.0,
+        }
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        self._orders = _check_orders(self.name, self.options, "orders", 1)
+        br = self.options["block_rows"]
+        if br is not None and (isinstance(br, bool) or not isinstance(br, int) or br < 1):
+            raise MethodError(f"method {self.name!r}: option block_rows must be a whole number >= 1, got {br!r}")
+
+    def search_space(self, data: Samples) -> SearchSpace:
+        sizes = [len(s) for s in data.segments] or [0]
+        orders = self._orders or derived_orders(min(sizes), sum(sizes), len(data.input_names), 16)
+        return {"order": np.array(orders)}
+
+    def _block_rows(self, order: int, k: int) -> int:
+        br = self.options["block_rows"]
+        return int(br) if br is not None else max(2, math.ceil(1.5 * order / k))
+
+    def _identify(self, U: np.ndarray, Y: np.ndarray, block_rows: int):
+        import pandas as pd
+        from nfoursid.nfoursid import NFourSID
+
+        cols_u = [f"u{j}" for j in range(U.shape[1])]
+        cols_y = [f"y{j}" for j in range(Y.shape[1])]
+        frame = pd.DataFrame(np.hstack([U, Y]), columns=cols_u + cols_y)
+        sid = NFourSID(frame, output_columns=cols_y, input_columns=cols_u, num_block_rows=block_rows)
+        sid.subspace_identification()
+        return sid
+
+    def _fit_orders(self, train: Samples, orders: Sequence[int]) -> list[StateSpaceFit]:
+        self.check_mode(train.mode)
+        traj = training_trajectories(self.name, train)
+        scaling = _Scaling.of(traj)
+        U, Y = _whole(traj, scaling)
+        k = Y.shape[1]
+        env = Envelope.around(np.vstack([t.Y for t in traj]), float(self.options["envelope"]))
+        fits, cache = [], {}
+        for order in orders:
+            br = self._block_rows(order, k)
+            if order > br * k:
+                raise MethodError(f"method {self.name!r}: order {order} exceeds block_rows x outputs = {br * k}; "
+                                  "raise block_rows")
+            if len(U) < 4 * br * (U.shape[1] + k):
+                raise MethodError(f"method {self.name!r}: {len(U)} training samples are too few for {br} Hankel block "
+                                  "rows; use lower orders")
+            try:
+                if br not in cache:
+                    cache[br] = self._identify(U, Y, br)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    ss, _ = cache[br].system_identification(rank=order)
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                raise MethodError(f"method {self.name!r}: nfoursid could not identify order {order}: "
+                                  f"{str(exc).splitlines()[0]}") from exc
+            mats = (np.array(mat, dtype=np.float64, order="C") for mat in (ss.a, ss.b, ss.c, ss.d))  # pickle-stable
+            fits.append(StateSpaceFit(*mats, order, br, scaling, env, tuple(train.input_names), tuple(train.target_names)))
+        return fits
+
+    def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> StateSpaceFit:
+        """Subspace identification on the concatenated standardised training segments. ``rng`` is not drawn from."""
+        return self._fit_orders(train, [_whole_number(self.name, params, "order", 1)])[0]
+
+    def predict(self, fitted: StateSpaceFit, data: Samples) -> SegmentPredictions:
+        """Free run from the state fitted to each init window."""
+        check_prediction_inputs(self.name, data, len(fitted.input_names))
+        sc = fitted.scaling
+
+        def run(U: np.ndarray, window: np.ndarray) -> np.ndarray:
+            Us = sc.u(U)
+            x0 = initial_state(fitted.A, fitted.B, fitted.C, fitted.D, Us, sc.y(window))
+            return sc.y_back(simulate_state_space(fitted.A, fitted.B, fitted.C, fitted.D, x0, Us))
+
+        return _predictions(self.name, data, len(fitted.target_names), fitted.envelope, run)
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """One subspace decomposition serves every order."""
+        out = np.empty((len(grid), len(data), len(train.target_names)))
+        fits = self._fit_orders(train, [_whole_number(self.name, p, "order", 1) for p in grid])
+        for i, fitted in enumerate(fits):
+            if data.segments:
+                out[i] = np.concatenate(self.predict(fitted, data))
+        return out
+
+    def describe(self, fitted: StateSpaceFit) -> dict[str, Any]:
+        poles = np.linalg.eigvals(fitted.A)
+        radius = float(np.abs(poles).max()) if poles.size else 0.0
+        return {
+            "order": fitted.order, "block_rows": fitted.block_rows, "package": "nfoursid",
+            "poles": [[float(p.real), float(p.imag)] for p in poles],
+            "max_pole_modulus": radius, "stable": bool(radius < 1.0),
+            "A": fitted.A.tolist(), "B": fitted.B.tolist(), "C": fitted.C.tolist(), "D": fitted.D.tolist(),
+            "units": "standardised signals (training mean and std)",
+        }
