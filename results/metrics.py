@@ -161,17 +161,22 @@ def _times(*factors: float) -> float:
     return float(out)
 
 
-def _sq_ratio(e: np.ndarray, fe: float, c: np.ndarray, fc: float) -> float:
-    """sum((fe e)^2) / sum((fc c)^2) in scaled form (inf when it overflows); c must not be all zero."""
+def _norm_ratio(e: np.ndarray, fe: float, c: np.ndarray, fc: float) -> float:
+    """||fe e|| / ||fc c|| in scaled form (inf when it overflows, never OverflowError); c must not be all zero."""
     se, qe = _scaled_sq(e)
     sc, qc = _scaled_sq(c)
-    return _times((fe / fc) ** 2, (se / sc) ** 2, qe / qc) if qe else 0.0
+    if not qe:
+        return 0.0
+    with np.errstate(over="ignore", under="ignore"):
+        r = np.float64(se) / np.float64(sc) * (np.float64(fe) / np.float64(fc))
+    return _times(r, math.sqrt(qe / qc))
 
 
 def mean_abs(values: object) -> float:
     """mean |values| of finite numbers without overflow in the sum (the RMAE denominator).
 
-    Exact-scaled: finite whenever every value is; jobs use it for the training scale.
+    Exact-scaled: finite whenever every value is (np.mean of values near 1e308 overflows),
+    so it is the safe way to form the training scale passed to `compute_metrics`.
     """
     x = np.abs(np.asarray(values, dtype=float).ravel())
     return _mean(x) if x.size else float("nan")
@@ -186,7 +191,7 @@ def _constant_reason(name: str, t: np.ndarray) -> str | None:
 
 
 def _overflow_reason(name: str) -> str:
-    return (f"{name} is undefined: its value overflows double precision (the data reach about 1e308); "
+    return (f"{name} is undefined: its value overflows double precision (beyond 1.8e308); "
             "rescale the target, e.g. change its unit")
 
 
@@ -220,7 +225,8 @@ def r2(y_true: object, y_pred: object) -> float:
         )
     e, fe = _diff(p, t)
     c, fc = _diff(t, _mean(t))
-    return 1.0 - _sq_ratio(e, fe, c, fc)
+    ratio = _norm_ratio(e, fe, c, fc)
+    return 1.0 - _times(ratio, ratio)
 
 
 def nrmse(y_true: object, y_pred: object) -> float:
@@ -234,7 +240,7 @@ def nrmse(y_true: object, y_pred: object) -> float:
         raise DataError(reason)
     e, fe = _diff(p, t)
     c, fc = _diff(t, _mean(t))
-    return math.sqrt(_sq_ratio(e, fe, c, fc))
+    return _norm_ratio(e, fe, c, fc)
 
 
 def fit(y_true: object, y_pred: object) -> float:
@@ -473,10 +479,11 @@ def compute_metrics(
     if constant is None:
         e, fe = _diff(p, t)
         c, fc = _diff(t, _mean(t))
-        ratio = _sq_ratio(e, fe, c, fc)
-        values["r2"] = 1.0 - ratio
-        values["nrmse"] = math.sqrt(ratio)
-        values["fit"] = 100.0 * (1.0 - values["nrmse"])
+        ratio = _norm_ratio(e, fe, c, fc)
+        values["r2"] = 1.0 - _times(ratio, ratio)
+        values["nrmse"] = ratio
+        with np.errstate(over="ignore"):
+            values["fit"] = float(np.float64(100.0) * (1.0 - np.float64(ratio)))  # -inf is noted as overflow below
 
     values["ppmcc"] = ppmcc(t, p)
     if np.isnan(values["ppmcc"]):

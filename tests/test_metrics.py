@@ -332,10 +332,16 @@ def test_values_near_the_double_range_scale_exactly_or_are_nan_with_a_reason(dat
     values, notes = compute_metrics([t], [-t], 1.0)
     assert all(math.isnan(v) or math.isfinite(v) for v in values.values())
     assert {k for k, v in values.items() if isinstance(v, float) and math.isnan(v)} == set(notes)
-    assert notes["rmse"] == ("rmse is undefined: its value overflows double precision (the data reach about 1e308); "
+    assert notes["rmse"] == ("rmse is undefined: its value overflows double precision (beyond 1.8e308); "
                              "rescale the target, e.g. change its unit")
     assert math.isnan(values["mae"]) and values["nrmse"] == pytest.approx(2.0) and values["ppmcc"] == pytest.approx(-1.0)
     assert values["mape"] == pytest.approx(200.0) and values["fit"] == pytest.approx(-100.0)
+    # errors 1e300 times the output's spread: R^2 overflows (never an OverflowError); NRMSE is 1e300-ish
+    t = np.array([0.0, 1.0, 0.0, 2.0])
+    values, notes = compute_metrics([t], [t + np.array([1e300, -1e300, 1e300, 0.0])], 1.0)
+    assert math.isnan(values["r2"]) and notes["r2"].startswith("r2 is undefined: its value overflows")
+    assert values["rmse"] == pytest.approx(math.sqrt(3 / 4) * 1e300)
+    assert values["nrmse"] == pytest.approx(values["rmse"] / np.std(t)) and values["fit"] < -1e300
     # a training mean |y| that overflowed (jobs should use mean_abs, which does not): RMAE is nan with a note
     values, notes = compute_metrics([t / 4], [t / 8], math.inf)
     assert math.isnan(values["rmae"]) and notes["rmae"].startswith("RMAE is undefined: mean |y| of the training data")
