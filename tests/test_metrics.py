@@ -374,3 +374,27 @@ def test_properties(pair: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
     assert math.isnan(c) or -1.0 <= c <= 1.0
     # one segment: RMAE is pooled MAE over the scale
     assert rmae([t], [p], 7.0) == pytest.approx(m / 7.0 * 100.0, rel=1e-12, abs=1e-12)
+
+
+_any = st.floats(min_value=-1.7e308, max_value=1.7e308, allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def _segments_any_magnitude(draw: st.DrawFn) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    lengths = draw(st.lists(st.integers(1, 6), min_size=1, max_size=3))
+    truth = [draw(arrays(float, n, elements=_any)) for n in lengths]
+    pred = [draw(arrays(float, n, elements=_any)) for n in lengths]
+    return truth, pred
+
+
+@pytest.mark.filterwarnings("error")  # no RuntimeWarning and no OverflowError, whatever the magnitudes
+@settings(max_examples=80, deadline=None)
+@given(_segments_any_magnitude(), st.floats(1e-300, 1e300))
+def test_every_value_is_finite_and_in_its_bounds_or_nan_with_a_note(pair, scale) -> None:
+    truth, pred = pair
+    values, notes = compute_metrics(truth, pred, scale)
+    undefined = {k for k in METRICS if math.isnan(values[k])}
+    assert undefined == set(notes) - {"seg_constant"}
+    for key in set(METRICS) - undefined:
+        low, high = bounds(key)
+        assert math.isfinite(values[key]) and low <= values[key] <= high, (key, values[key])
