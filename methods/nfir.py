@@ -109,6 +109,8 @@ class MemoryEstimate:
 
     samples: int
     """The estimated memory M (samples)."""
+    best: int
+    """The ladder horizon with the smallest cross-validated error (samples)."""
     cap: int
     """The longest horizon considered: the median training record over ``RECORD_FRACTION``."""
     ladder: tuple[int, ...]
@@ -122,7 +124,7 @@ class MemoryEstimate:
 
     def warnings(self) -> list[str]:
         out = []
-        if self.samples >= self.cap and len(self.ladder) > 1:
+        if self.samples and self.best >= self.cap and len(self.ladder) > 1:
             out.append(f"the input->output memory estimate reached its cap of {self.cap} samples (a quarter of the "
                        "median training record): the records may be shorter than the system's memory, or the output "
                        "drifts; NFIR cannot look further back; give longer records or horizons explicitly")
@@ -139,6 +141,7 @@ class MemoryEstimate:
                     f"ladder's best, capped at the median record / {RECORD_FRACTION}; stride = ceil(h / (max_lags - 1))",
             "memory_samples": self.samples,
             "memory_s": self.samples * dt,
+            "best_samples": self.best,
             "cap_samples": self.cap,
             "ladder_samples": list(self.ladder),
             "ladder_errors": [round(e, 6) for e in self.errors],
@@ -207,9 +210,10 @@ def estimate_memory(
     else:
         memory = int(ladder[np.flatnonzero(errors <= best + (1 - MEMORY_SHARE) * (e0 - best))[0]])
     centre = max(memory, 1)
-    lowest = int(ladder[int(np.argmin(errors))]) if memory else centre  # the FIR's own best horizon
-    grid = tuple(int(h) for h in np.unique(np.clip([centre // 2, centre, 2 * centre, lowest], 0, cap)))
-    return MemoryEstimate(samples=memory, cap=cap, ladder=tuple(int(h) for h in ladder),
+    lowest = int(ladder[int(np.argmin(errors))])  # the FIR's own best horizon
+    grid = tuple(int(h) for h in np.unique(np.clip([centre // 2, centre, 2 * centre, lowest if memory else centre],
+                                                   0, cap)))
+    return MemoryEstimate(samples=memory, best=lowest, cap=cap, ladder=tuple(int(h) for h in ladder),
                           errors=tuple(float(e) for e in errors), grid=grid, max_lags=int(max_lags), rows=len(at))
 
 
@@ -285,6 +289,11 @@ class NFIR(KRLS):
         self._check_inputs(data, names, cols)
         if not data.has_targets:
             raise MethodError("method 'nfir': deriving the horizons needs training samples with targets")
+        for s in data.segments:
+            if not np.isfinite(s.y).all():
+                row, col = np.argwhere(~np.isfinite(s.y))[0]
+                raise MethodError(f"method 'nfir': segment {s.id!r} has nan/inf in target {data.target_names[col]!r} "
+                                  f"at row {int(s.rows[row])}; clean or drop it")
         key = (float(data.dt), tuple(cols), int(self.options["max_lags"]),
                tuple((s.id, len(s.U), len(s.rows), int(s.rows[0]) if len(s.rows) else -1) for s in data.segments),
                float(np.sum(data.y)))

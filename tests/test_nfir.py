@@ -332,3 +332,13 @@ def test_memory_warnings_reach_describe():
     assert d["horizons_derived"]["memory_samples"] == 0
     explicit = NFIR(horizons=[1.0])
     assert "warnings" not in explicit.describe(explicit.fit(noise, params, np.random.default_rng(0)))
+
+
+def test_nan_target_is_named_before_the_memory_estimate(data):
+    train, _ = data
+    seg = train.segments[2]
+    y = seg.y.copy()
+    y[11, 0] = np.nan
+    bad = replace(train, segments=(*train.segments[:2], replace(seg, y=y)))
+    with pytest.raises(MethodError, match=r"segment 's2' has nan/inf in target 'y' at row 11; clean or drop it"):
+        NFIR().search_space(bad)
