@@ -165,7 +165,6 @@ def test_grid_is_derived_from_the_data(data):
     ({"nb": [0, 2]}, r"option nb=\[0, 2\] must be >= 1"),
     ({"gamma_grid": (1, 0)}, "option gamma_grid=.* must be"),
     ({"centres": 0}, "option centres must be a whole number >= 1"),
-    ({"device": "tpu"}, "option device must be"),
 ])
 def test_bad_options_are_one_line(options, fragment):
     with pytest.raises(MethodError, match=fragment):
@@ -192,3 +191,17 @@ def test_describe_names_the_model(fitted):
 
 def test_conformance():
     check_method(NARX, {"gamma_grid": (-1, 0, 2), "lambda_grid": (-4, -2, 2)})
+
+
+def test_nystroem_with_every_row_as_a_centre_is_exact_krls():
+    from enginebench.methods.kernels import gaussian, sq_distances
+    from enginebench.methods.narx import nystroem_ridge
+
+    rng = np.random.default_rng(0)
+    Z, y = rng.normal(size=(60, 3)), rng.normal(size=60)
+    lambdas = np.array([1e-3, 1e-1])
+    betas, rank = nystroem_ridge(Z, y, Z, 0.5, lambdas, block_rows=7)
+    K = gaussian(sq_distances(Z), 0.5)
+    assert rank == 60
+    for beta, lam in zip(betas, lambdas):
+        np.testing.assert_allclose(beta, np.linalg.solve(K + lam * np.eye(60), y), rtol=1e-6, atol=1e-8)
