@@ -87,7 +87,10 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     summary = summarize(raw, interval=spec.interval)
     out = Console()
     out.print(to_rich(summary, title=f"{spec.name} ({spec.dataset}, {spec.mode})"))
-    click.echo(paired_lines(paired_tests(raw, "mae"), "mae"), nl=False)
+    from enginebench.experiments.report import default_paired_metric
+
+    paired_metric = default_paired_metric(spec.mode)
+    click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric), nl=False)
     for key, why in result.damaged.items():
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
     from enginebench.results.notes import note_lines

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 import traceback
+import warnings
 import zlib
 from dataclasses import dataclass
 from typing import Any
@@ -22,7 +23,7 @@ from enginebench.errors import MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.methods.base import Method
-from enginebench.results.metrics import compute_metrics
+from enginebench.results.metrics import compute_metrics, mean_abs
 
 
 @dataclass(frozen=True)
@@ -174,6 +175,47 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     meta: dict[str, Any] = {"job": job.key, **base}
     timings: dict[str, float] = {}
     rows: list[dict[str, Any]] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for quiet in (DeprecationWarning, PendingDeprecationWarning, FutureWarning):  # library upkeep, not the result's
+            warnings.simplefilter("ignore", quiet)
+        rows = _run_job(ctx, job, spec, problem, method, base, meta, timings)
+    heard = caught_warnings(caught)
+    if heard and meta["status"] == "ok":
+        meta["warnings"] = [*meta.get("warnings", []), *(f"{job.method}: {w}" for w in heard)]
+    meta["timings"] = timings
+    if not rows:
+        rows.append({**base, "split": "-", "metric": "failed", "value": float("nan")})
+    for name, value in timings.items():
+        rows.append({**base, "split": "-", "metric": f"time_{name}", "value": value})
+    frame = pd.DataFrame(rows)
+    frame["status"] = meta["status"]
+    return frame, meta
+
+
+MAX_JOB_WARNINGS = 5
+"""Distinct Python warnings kept per job (the first ones; a count says how many more)."""
+
+
+def caught_warnings(caught: list[warnings.WarningMessage]) -> list[str]:
+    """Distinct warnings raised while a job ran, ``Category: message (n times)``, at most ``MAX_JOB_WARNINGS``.
+
+    Numerical warnings of method code (numpy overflow, ill-conditioning...) become job
+    warnings, listed with the run's other notes, instead of reaching the terminal unexplained.
+    """
+    counts: dict[str, int] = {}
+    for w in caught:
+        text = " ".join(f"{w.category.__name__}: {w.message}".split())
+        counts[text[:200]] = counts.get(text[:200], 0) + 1
+    out = [f"{text} ({n} times)" if n > 1 else text for text, n in counts.items()]
+    return out[:MAX_JOB_WARNINGS] + ([f"... and {len(out) - MAX_JOB_WARNINGS} other warning(s)"]
+                                      if len(out) > MAX_JOB_WARNINGS else [])
+
+
+def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, method: Method,
+             base: dict[str, Any], meta: dict[str, Any], timings: dict[str, float]) -> list[dict[str, Any]]:
+    """The body of ``run_job``: metric rows, with ``meta`` and ``timings`` filled in; never raises."""
+    rows: list[dict[str, Any]] = []
     try:
         train = training_samples(spec, problem, job.repetition, job.split)
         rng = method_rng(spec, job)
@@ -185,8 +227,7 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         fit_on = refit_samples(spec, problem, train, job.repetition, job.split)
         fitted = method.fit(fit_on, params, rng)
         timings["fit_s"] = time.perf_counter() - t0
-        y_train = fit_on.y
-        scale = float(np.mean(np.abs(y_train)))
+        scale = mean_abs(fit_on.y)  # exact-scaled: no overflow near 1e308
         described = method.describe(fitted)
         warnings = [*search.pop("warnings", []), *[f"{job.method}: {w}" for w in described.get("warnings", []) or []]]
         meta.update(params=params, search=search, describe=described, n_train=len(fit_on),
@@ -217,11 +258,4 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         rows = []
         meta.pop("warnings", None)
         meta.update(status="failed", reason=one_line_reason(exc), traceback=traceback.format_exc(limit=8))
-    meta["timings"] = timings
-    if not rows:
-        rows.append({**base, "split": "-", "metric": "failed", "value": float("nan")})
-    for name, value in timings.items():
-        rows.append({**base, "split": "-", "metric": f"time_{name}", "value": value})
-    frame = pd.DataFrame(rows)
-    frame["status"] = meta["status"]
-    return frame, meta
+    return rows

@@ -329,12 +329,17 @@ def _page(run: Run, summary: pd.DataFrame, metrics_cols: Sequence[str], paired: 
     return "".join(parts)
 
 
+def default_paired_metric(mode: str) -> str:
+    """The metric the paired tests use by default: the simulation error's rmse, else mae."""
+    return "rmse" if mode == "simulation" else "mae"
+
+
 def write_report(
     run: Run,
     out_dir: str | Path,
     *,
-    metrics: Sequence[str] = tables.DEFAULT_METRICS,
-    paired_metric: str = "mae",
+    metrics: Sequence[str] | None = None,
+    paired_metric: str | None = None,
     interval: str | None = None,
     figures: bool = True,
     repetition: int = 0,
@@ -346,7 +351,9 @@ def write_report(
     """Write ``out_dir/index.html`` with ``run``'s tables, settings and PNG figures beside it.
 
     ``figures=False`` writes the tables only (no data loaded, no re-fit). Figures needing
-    predictions re-fit ``repetition`` on ``part`` (see the module docstring).
+    predictions re-fit ``repetition`` on ``part`` (see the module docstring). ``metrics``
+    defaults to the columns of the run's mode (``tables.default_metrics``); the paired
+    tests to rmse in simulation mode and mae otherwise ('' skips them).
     """
     if repetition < 0:
         raise MethodError(f"repetition must be >= 0, got {repetition}")
@@ -355,6 +362,9 @@ def write_report(
     cfg = run.config()
     raw = run.metrics()
     summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
+    metrics = list(metrics) if metrics else tables.default_metrics(summary)
+    if paired_metric is None:
+        paired_metric = default_paired_metric(cfg.get("mode", ""))
     table_path = out / TABLE_FILE
     table_path.write_text(tables.to_csv(summary), encoding="utf-8")
     paired = tables.paired_tests(raw, paired_metric) if paired_metric else None

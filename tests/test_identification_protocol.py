@@ -324,3 +324,27 @@ def test_a_boolean_is_not_a_grid_bound():
 
     with pytest.raises(MethodError, match=r"option gamma_grid=\(-1, True, 3\) must be \(low exponent, high exponent"):
         check_log_grid_option("krls", "gamma_grid", (-1, True, 3))
+
+
+@register
+class Noisy(Method):
+    """Predicts the training mean, and overflows numpy on the way (as a method at 1e300 would)."""
+
+    name = "test-noisy"
+    family = "baseline"
+    modes = frozenset({"simulation"})
+
+    def fit(self, train, params, rng):
+        np.float64(1e308) * np.float64(10.0)  # RuntimeWarning: overflow
+        return float(np.mean(train.y))
+
+    def predict(self, fitted, data):
+        return SegmentPredictions([np.full((len(s), 1), fitted) for s in data.segments])
+
+
+def test_numerical_warnings_of_method_code_become_job_warnings(recs_file, tmp_path, recwarn):
+    run = run_experiment(spec(recs_file, methods={"test-noisy": {}}), RunStore(tmp_path / "runs"), workers=1).run
+    meta = run.job_meta(run.job_files()[0].stem)
+    assert meta["status"] == "ok"
+    assert meta["warnings"] == ["test-noisy: RuntimeWarning: overflow encountered in scalar multiply"]
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]  # none reached the caller
