@@ -130,6 +130,19 @@ def test_upstream_is_tuned_on_a_holdout_of_training_trajectories(internal):
     assert fitted.upstreams[0].params["horizon"] == 1.0 and fitted.upstreams[0].params["gamma"] in (0.01, 0.1, 1.0)
 
 
+def test_an_nfir_upstream_derives_its_horizons_from_the_intermediate(internal):
+    """Default upstream options: the horizons come from w's memory (a lag of u2 by one sample), in samples."""
+    train, test = internal
+    c = nfir_cascade(upstream_params={"gamma": 0.5, "lambda": 1e-2})
+    fitted = c.fit(train, NF2, np.random.default_rng(0))
+    up = c.describe(fitted)["upstream"][0]
+    derived = up["horizons_derived"]
+    assert derived["grid_samples"] and up["horizon_samples"] in derived["grid_samples"]
+    assert fitted.upstreams[0].search["grid_size"] == len(derived["grid_samples"])
+    assert up["horizon_s"] == pytest.approx(up["horizon_samples"] * DT)
+    assert np.isfinite(np.concatenate(c.predict(fitted, test.without_targets()))).all()
+
+
 def test_surrogates_feed_both_upstream_and_downstream(internal):
     train, test = internal
     c = nfir_cascade(surrogates=["g"], surrogate_params=NF, surrogate_options={"max_rows": 0})
