@@ -19,7 +19,10 @@ and hyperparameters searched by the toolkit's selection on free-run error.
 
 Both libraries take one trajectory: several training segments are concatenated (the few
 samples after each boundary then mix two records; fine for a few long records, stated
-here because it is not the libraries' fault). Signals are standardised with training
+here because it is not the libraries' fault). ``nfoursid`` computes a full singular value
+decomposition whose right factor is n x n (n samples: 3 GB at n = 20,000), so ``n4sid``
+hands it at most ``max_samples`` (default 5,000) samples, the first ones of the longest
+training segment; a linear model of a few dozen parameters needs no more. Signals are standardised with training
 statistics before they are handed over, for the libraries' numerical conditioning; the
 results are returned in the data's units.
 """
@@ -308,7 +311,8 @@ class N4SID(PeerMethod):
     def default_options(cls) -> dict[str, Any]:
         return {
             "orders": None,  # state orders searched: None = derived {1, 2, 4, 8, 16} within what the data carry
-            "block_rows": None,  # Hankel block rows: None = 1.5 x the largest order / outputs, at least 2
+            "block_rows": None,  # Hankel block rows: None = 1.5 x the order / outputs, at least 2
+            "max_samples": 5000,  # samples handed to nfoursid (its full SVD forms an n x n factor)
             "envelope": 10.0,
         }
 
@@ -318,6 +322,9 @@ class N4SID(PeerMethod):
         br = self.options["block_rows"]
         if br is not None and (isinstance(br, bool) or not isinstance(br, int) or br < 1):
             raise MethodError(f"method {self.name!r}: option block_rows must be a whole number >= 1, got {br!r}")
+        ms = self.options["max_samples"]
+        if isinstance(ms, bool) or not isinstance(ms, int) or ms < 10:
+            raise MethodError(f"method {self.name!r}: option max_samples must be a whole number >= 10, got {ms!r}")
 
     def search_space(self, data: Samples) -> SearchSpace:
         sizes = [len(s) for s in data.segments] or [0]
@@ -344,6 +351,10 @@ class N4SID(PeerMethod):
         traj = training_trajectories(self.name, train)
         scaling = _Scaling.of(traj)
         U, Y = _whole(traj, scaling)
+        cap = int(self.options["max_samples"])
+        if len(U) > cap:  # the first samples of the longest segment: one contiguous record, no boundary
+            longest = max(traj, key=lambda t: len(t.Y))
+            U, Y = _whole([Trajectory(longest.id, longest.U[:cap], longest.Y[:cap])], scaling)
         k = Y.shape[1]
         env = Envelope.around(np.vstack([t.Y for t in traj]), float(self.options["envelope"]))
         fits, cache = [], {}
