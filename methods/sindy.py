@@ -12,20 +12,25 @@ training range is stopped, held at its last in-envelope value and flagged diverg
 
 Thresholds relative to the data (the default, ``threshold_scale = "relative"``). The STLSQ
 threshold removes a term of the equation for d(x_k)/dt when its coefficient is smaller
-than ``threshold x rms(dx_k/dt)``, the root mean square of that state's fitted derivative
-over the training data. The library terms are built from standardised signals (unit
-standard deviation), so a relative threshold of 0.1 drops a term when a one-standard-
-deviation change of it moves the derivative by less than a tenth of its typical size,
-whatever the signal's units, the sample period (1 ms or 10 s) or ``time_scale``; an absolute
-threshold instead means "per ``time_scale`` second" and empties the model of a slow
-system (every coefficient of a system with time constants of minutes is below 0.01/s).
-Implemented exactly by dividing each state's derivative by its rms before STLSQ and
-multiplying the coefficients back (the ridge step is linear in the target). The default
-grid is 0.01 .. 0.5 relative; ``threshold_scale = "absolute"`` restores the seed's
-absolute thresholds (default grid 1e-2 .. 1e3, per ``time_scale`` second), which the
-turboshaft experiments pin. With relative thresholds ``time_scale`` is only the unit of
-the reported equations. A state whose every term is still removed is named in describe's
-``constant_states`` and ``warnings`` (the job's warnings).
+than ``threshold x unit_k`` with ``unit_k = min(rms(dx_k/dt), c_k)``: the root mean square
+of that state's fitted derivative over the training data, capped by c_k, the largest
+coefficient magnitude of STLSQ's first pass (the ridge fit on the whole library). The
+library terms are built from standardised signals (unit standard deviation), so a
+relative threshold of 0.1 drops a term when a one-standard-deviation change of it moves
+the derivative by less than a tenth of its typical size, whatever the signal's units,
+the sample period (1 ms or 10 s) or ``time_scale``; the cap keeps the first pass's largest
+term at every threshold below 1, so the default grid does not empty an equation whose
+library explains little of its derivative. An absolute threshold instead means "per
+``time_scale`` second" and empties the model of a slow system (every coefficient of a
+system with time constants of minutes is below 0.01/s). Implemented exactly by dividing
+each state's derivative by its unit before STLSQ and multiplying the coefficients back
+(every ridge step is linear in the target). The default grid is 0.01 .. 0.5 relative;
+``threshold_scale = "absolute"`` restores the seed's absolute thresholds (default grid
+1e-2 .. 1e3, per ``time_scale`` second), which the turboshaft experiments pin. With
+relative thresholds ``time_scale`` is only the unit of the reported equations. A state
+whose every term is still removed (STLSQ's later passes may drop the first pass's
+largest term) is named in describe's ``constant_states`` and ``warnings`` (the job's
+warnings).
 
 State initialisation: a segment with an initialisation window (``y_init``, N measured
 outputs) is simulated from its last sample, row N - 1, so the model starts from the most
@@ -42,6 +47,7 @@ from typing import Any, Sequence
 
 import numpy as np
 import pysindy as ps
+from sklearn.linear_model import ridge_regression
 from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.samples import Samples
@@ -91,7 +97,9 @@ class SINDyFit:
     notes: list[str] = field(default_factory=list)
     threshold_scale: str = "absolute"
     derivative_rms: np.ndarray | None = None
-    """Root mean square of each state's standardised derivative (the unit of relative thresholds)."""
+    """Root mean square of each state's standardised derivative."""
+    threshold_unit: np.ndarray | None = None
+    """What the threshold multiplied, per equation: 1 (absolute) or ``threshold_unit(...)`` (relative)."""
 
     @property
     def n_states(self) -> int:
@@ -285,6 +293,24 @@ def raw_coefficients(fit: SINDyFit) -> np.ndarray:
     return raw * (fit.state_std / fit.time_scale)[:, None]
 
 
+def threshold_unit(prep: "_Prepared", degree: int, alpha: float) -> np.ndarray:
+    """Per equation, what a relative threshold multiplies: min(rms of dx_k/dt, largest first-pass coefficient).
+
+    The first pass is STLSQ's own first step, the ridge fit (``alpha``) of dx_k/dt on the
+    whole degree-``degree`` library. Capping the unit there keeps that pass's largest term
+    for every threshold below 1, so a relative grid below 1 does not empty an equation
+    whose library explains little of its derivative (the rms alone would).
+    """
+    z = [x if u is None else np.hstack([x, u]) for x, u in zip(prep.x, prep.u or [None] * len(prep.x))]
+    z = np.vstack(z)
+    powers = ps.PolynomialLibrary(degree=int(degree)).fit(z[:1]).powers_
+    theta = library_features(z, np.asarray(powers, dtype=np.int64))
+    first = ridge_regression(theta, np.concatenate(prep.x_dot), float(alpha))
+    largest = np.abs(np.atleast_2d(first)).max(axis=1)
+    rms = prep.derivative_rms
+    return np.where(np.isfinite(largest) & (largest > 0), np.minimum(rms, largest), rms)
+
+
 def initial_state(segment: Any) -> tuple[int, np.ndarray | None]:
     """(row, measured output) a simulation of ``segment`` starts from: the init window's last sample, else y0.
 
@@ -469,8 +495,7 @@ class SINDy(Method):
             "threshold_scale": fitted.threshold_scale,
             # the threshold each equation was cut at, in standardised units per time_scale second
             "threshold_per_equation": (float(fitted.params["threshold"]) * (
-                fitted.derivative_rms if fitted.threshold_scale == "relative" and fitted.derivative_rms is not None
-                else np.ones(fitted.n_states))).tolist(),
+                np.ones(fitted.n_states) if fitted.threshold_unit is None else fitted.threshold_unit)).tolist(),
             "derivative_rms": None if fitted.derivative_rms is None else fitted.derivative_rms.tolist(),
             "alpha": float(fitted.params["alpha"]),
             "feature_names": list(names),
@@ -590,8 +615,8 @@ class SINDy(Method):
         names = list(train.target_names) + list(train.input_names)
         notes = list(prep.notes)
         relative = self.options["threshold_scale"] == "relative"
-        # relative: STLSQ on each derivative over its rms, so one threshold cuts every equation at threshold x rms
-        unit = prep.derivative_rms if relative else np.ones_like(prep.derivative_rms)
+        # relative: STLSQ on each derivative over its unit, so one threshold cuts equation k at threshold x unit_k
+        unit = threshold_unit(prep, p["degree"], p["alpha"]) if relative else np.ones_like(prep.derivative_rms)
         x_dot = [xd / unit for xd in prep.x_dot] if relative else prep.x_dot
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -615,5 +640,5 @@ class SINDy(Method):
             time_scale=float(self.options["time_scale"]), params=p, state_names=tuple(train.target_names),
             control_names=tuple(train.input_names), derivative=self.options["derivative"],
             derivative_alpha=self.derivative_alpha, notes=notes, threshold_scale=self.options["threshold_scale"],
-            derivative_rms=prep.derivative_rms,
+            derivative_rms=prep.derivative_rms, threshold_unit=unit,
         )

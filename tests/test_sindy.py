@@ -370,11 +370,16 @@ def test_relative_threshold_is_the_absolute_threshold_times_the_derivative_rms()
     rms = fit.derivative_rms[0]
     prep = rel._prepare(QUADRATIC)
     assert rms == pytest.approx(np.sqrt(np.mean(np.concatenate(prep.x_dot) ** 2)), rel=1e-12)
+    # the unit is the rms unless STLSQ's first (ridge) pass has no coefficient that large
+    z = np.hstack([np.vstack(prep.x), np.vstack(prep.u)])
+    first = np.linalg.solve((t := library_features(z, fit.powers)).T @ t + 1e-4 * np.eye(t.shape[1]),
+                            t.T @ np.concatenate(prep.x_dot))
+    assert fit.threshold_unit[0] == pytest.approx(min(rms, np.abs(first).max()), rel=1e-8)
     absolute = SINDy(derivative="kalman", threshold_scale="absolute")
-    ref = absolute.fit(QUADRATIC, {"degree": 3, "threshold": 0.2 * rms, "alpha": 1e-4}, RNG)
+    ref = absolute.fit(QUADRATIC, {"degree": 3, "threshold": 0.2 * fit.threshold_unit[0], "alpha": 1e-4}, RNG)
     np.testing.assert_allclose(fit.coef, ref.coef, rtol=1e-9, atol=1e-12)
     d = rel.describe(fit)
-    assert d["threshold_scale"] == "relative" and d["threshold_per_equation"] == [pytest.approx(0.2 * rms)]
+    assert d["threshold_scale"] == "relative" and d["threshold_per_equation"] == [pytest.approx(0.2 * fit.threshold_unit[0])]
     # pysindy's own model object carries the same (rescaled) coefficients
     x, u = np.array([[0.3], [-1.0]]), np.array([[0.5], [0.1]])
     np.testing.assert_allclose(np.asarray(fit.model.predict(x, u=u)), library_features(np.hstack([x, u]), fit.powers)
@@ -442,3 +447,22 @@ def test_simulation_starts_from_the_last_sample_of_the_init_window():
     bad = replace(seg, y_init=seg.y_init * np.nan)
     with pytest.raises(MethodError, match=r"segment 's0' has no finite initial output y_init \(row 4\)"):
         m.predict(fitted, replace(view, segments=(bad,)))
+
+
+def test_default_grid_keeps_a_term_where_the_library_explains_little():
+    """An output the input does not drive (noise around a slow drift): the derivative's rms is large and every
+    coefficient small, so a cut at 0.5 x rms would empty the model; the first-pass cap keeps its largest term."""
+    rng = np.random.default_rng(4)
+    frames = [pd.DataFrame({"segment": f"s{k}", "time": np.arange(200) * DT, "u": np.sin(0.05 * np.arange(200) + k),
+                            "y": np.cumsum(rng.normal(size=200)) * 0.1 + rng.normal(size=200)}) for k in range(3)]
+    data = make_samples(Dataset("noise", pd.concat(frames, ignore_index=True),
+                                Schema.from_roles({"u": "input", "y": "output"}), DT), ["y"], "simulation")
+    m = SINDy(derivative="kalman")
+    grid = grid_points(m.search_space(data))
+    fits = [m.fit(data, p, RNG) for p in grid]
+    assert all(m.describe(f)["term_count"] >= 1 for f in fits)
+    top = [f for f, p in zip(fits, grid) if p["threshold"] == 0.5]
+    assert all(f.threshold_unit[0] < 0.5 * f.derivative_rms[0] for f in top)  # capped well below the rms
+    plain = SINDy(derivative="kalman", threshold_scale="absolute")  # the same cut at 0.5 x rms empties it
+    rms = top[0].derivative_rms[0]
+    assert plain.describe(plain.fit(data, {"degree": 1, "threshold": 0.5 * rms, "alpha": 1e-4}, RNG))["term_count"] == 0
