@@ -249,7 +249,12 @@ class ARX(Method):
         traj = training_trajectories(NAME, train)
         out = np.empty((len(grid), len(data), len(train.target_names)))
         for i, params in enumerate(grid):
-            fitted = self._fit(traj, train, *self._orders_of(params))
+            orders = self._orders_of(params)
+            try:
+                fitted = self._fit(traj, train, *orders)
+            except MethodError:  # orders the fitting pieces cannot carry: this point scores +inf, the others go on
+                out[i] = np.nan
+                continue
             if data.segments:
                 out[i] = np.concatenate(self.predict(fitted, data))
         return out

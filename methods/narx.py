@@ -426,8 +426,13 @@ class NARX(Method):
         return C, betas, "nystroem", {"nystroem_rank": rank}
 
     def _models(self, std: _Standardised, k: int, points: Sequence[tuple[int, int, int, float, float]],
-                rng: np.random.Generator) -> tuple[list[list[KernelModel]], str, int, dict[str, Any]]:
-        """Kernel models for every point (one per target), sharing regressors per order and solves per gamma."""
+                rng: np.random.Generator, strict: bool = True
+                ) -> tuple[list[list[KernelModel] | None], str, int, dict[str, Any]]:
+        """Kernel models for every point (one per target), sharing regressors per order and solves per gamma.
+
+        With ``strict=False`` (selection) orders that leave too few regression rows give
+        None for their points instead of an error: they score +inf, the others go on.
+        """
         out: list[list[KernelModel | None]] = [[None] * k for _ in points]
         solver, n_rows, info = "exact", 0, {}
         by_orders: dict[tuple[int, int, int], list[int]] = {}
@@ -436,6 +441,10 @@ class NARX(Method):
         for (na, nb, nk), members in by_orders.items():
             for target in range(k):
                 Z, y = regressors(std.traj, target, na, nb, nk)
+                if len(y) < 2 and not strict:
+                    for i in members:
+                        out[i] = None  # type: ignore[call-overload]
+                    break
                 if len(y) < 2:
                     longest = max(len(tr.Y) for tr in std.traj)
                     raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {len(y)} regression rows "
@@ -518,11 +527,15 @@ class NARX(Method):
         if not points or not data.segments:
             return out
         std = _standardise(training_trajectories(NAME, train), float(self.options["envelope"]))
-        models, solver, n_rows, info = self._models(std, k, points, rng)
-        fits = [NARXFit(models=tuple(ms), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean, u_std=std.u_std,
-                        input_names=tuple(train.input_names), target_names=tuple(train.target_names),
-                        envelope=std.envelope, solver=solver, n_rows=n_rows) for ms in models]
-        for i, (arrays, _) in enumerate(self._simulate(fits, data)):
+        models, solver, n_rows, info = self._models(std, k, points, rng, strict=False)
+        usable = [i for i, ms in enumerate(models) if ms is not None]
+        out[[i for i in range(len(points)) if i not in usable]] = np.nan  # too few rows for these lags: +inf score
+        if not usable:
+            return out
+        fits = [NARXFit(models=tuple(models[i]), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean,  # type: ignore
+                        u_std=std.u_std, input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+                        envelope=std.envelope, solver=solver, n_rows=n_rows) for i in usable]
+        for i, (arrays, _) in zip(usable, self._simulate(fits, data)):
             out[i] = np.concatenate(arrays)
         return out
 

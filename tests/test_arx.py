@@ -202,3 +202,10 @@ def test_bad_prediction_input_is_one_line(fitted):
 
 def test_conformance():
     check_method(ARX)
+
+
+def test_selection_skips_orders_the_fitting_pieces_cannot_carry():
+    train, test = sim_samples(linear_raw(2, 12)), sim_samples(linear_raw(1, 50, seed=2), 5)
+    grid = [{"na": 16, "nb": 16, "nk": 1}, {"na": 1, "nb": 1, "nk": 1}]
+    out = ARX().predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()

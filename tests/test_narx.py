@@ -205,3 +205,10 @@ def test_nystroem_with_every_row_as_a_centre_is_exact_krls():
     assert rank == 60
     for beta, lam in zip(betas, lambdas):
         np.testing.assert_allclose(beta, np.linalg.solve(K + lam * np.eye(60), y), rtol=1e-6, atol=1e-8)
+
+
+def test_selection_skips_lags_the_fitting_pieces_cannot_carry():
+    train, test = samples(nonlinear_raw(2, 10)), samples(nonlinear_raw(1, 40, seed=2), 3)
+    grid = [{"lags": 12, "nk": 0, "gamma": 0.1, "lambda": 1e-4}, {"lags": 2, "nk": 0, "gamma": 0.1, "lambda": 1e-4}]
+    out = NARX().predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()
