@@ -70,7 +70,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, log_grid
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
-                                         option_orders, padded_past, training_trajectories)
+                                         option_orders, training_trajectories)
 from enginebench.methods.kernels import check_positive, gaussian, sq_distances
 from enginebench.methods.shifted import ridge_solutions
 

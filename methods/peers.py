@@ -61,7 +61,6 @@ class PeerMethod(Method):
     family = "data-driven"
     modes = frozenset({"simulation"})
     package: ClassVar[str] = ""
-    peer_summary: ClassVar[str] = ""
 
     @classmethod
     def available(cls) -> str | None:
