@@ -41,11 +41,10 @@ Selection: the toolkit scores ``predict_grid``'s free runs on validation blocks,
 orders and kernel hyperparameters are chosen on simulation error, not one-step error.
 
 Defaults derived from the data:
-- lags (na = nb, in samples) from {2, 4, 8} where the training data carry them
+- lags (na = nb, in samples) from {2, 4, 8, 16} where the training data carry them
   (``freerun.derived_orders``: at most a quarter of the shortest training segment and a
   tenth as many regressors as rows, at most ``max_lag``); nk = 0 (u(t) is a regressor,
-  which also covers a one-sample delay). Options na, nb, nk fix or list them instead
-  (a Gaussian kernel in many more dimensions needs far more data than a record holds).
+  which also covers a one-sample delay). Options na, nb, nk fix or list them instead.
 - gamma relative to d on standardised signals, {0.001, 0.01, 0.1, 1}, and lambda
   relative to the number of regression rows (lambda = lambda_rel x rows, the per-row
   convention), {1e-12, 1e-10, ..., 1e-4}: free-run selection favours smooth maps with
@@ -75,7 +74,7 @@ from enginebench.methods.kernels import check_positive, gaussian, sq_distances
 from enginebench.methods.shifted import ridge_solutions
 
 NAME = "narx"
-LAG_BASE = (2, 4, 8)
+LAG_BASE = (2, 4, 8, 16)
 NYSTROEM_RTOL = 1e-10
 """Eigenvalues of K_mm below this fraction of the largest are dropped (Nystroem pseudo-inverse)."""
 CHUNK_MIB = 32.0
@@ -329,7 +328,7 @@ class NARX(Method):
             "na": None,  # output lags (samples): None = tied to nb on a derived grid, a number or a list
             "nb": None,  # input lags per input (>= 1)
             "nk": 0,  # input delay (samples): u(t - nk) is the newest input regressor
-            "max_lag": 8,  # cap of the derived lag grid
+            "max_lag": 16,  # cap of the derived lag grid
             "gamma_grid": (-3.0, 0.0, 4),  # log10 of gamma relative to the regressor count d
             "lambda_grid": (-12.0, -4.0, 5),  # log10 of lambda relative to the number of regression rows
             "exact_max_rows": 2000,  # exact KRLS up to this many rows, Nystroem + FALKON above

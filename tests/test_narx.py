@@ -152,7 +152,7 @@ def test_a_run_leaving_the_envelope_is_held_and_flagged(data, fitted):
 def test_grid_is_derived_from_the_data(data):
     train, _ = data
     space = NARX().search_space(train)
-    assert space["lags"].tolist() == [2, 4, 8]  # 300-row segments: lag <= 75, 2 lag + 1 <= 90 regressors, <= 8
+    assert space["lags"].tolist() == [2, 4, 8, 16]  # 300-row segments: lag <= 75, 2 lag + 1 <= 90 regressors
     assert space["nk"].tolist() == [0] and len(space["gamma"]) == 4 and len(space["lambda"]) == 5
     short = NARX().search_space(samples(nonlinear_raw(2, 40)))
     assert short["lags"].tolist() == [2]  # lag <= 10 and 2 lag + 1 <= 8 regressors
