@@ -257,7 +257,28 @@ def table_notes(summary: pd.DataFrame, cells: pd.DataFrame) -> list[str]:
     if {"rmse", "nrmse", "fit"} & set(cells.columns):
         notes.append("rmse in the target's unit; nrmse = rmse / standard deviation of the measured output "
                      "(dimensionless); fit = 100 (1 - nrmse), in %")
-    return notes
+    return notes + worse_than_baseline(summary)
+
+
+def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
+    """A note for each method whose mean error is above the training mean's (``BASELINE``) in the same block.
+
+    The error is rmse in simulation mode and mae otherwise: a model that does worse than a
+    constant is never left for the reader to spot (its settings do not suit these data).
+    """
+    out = []
+    block_keys = ["dataset", "target", "mode", "window", "split"]
+    for key, block in summary.groupby(block_keys, sort=False, dropna=False):
+        metric = "rmse" if key[2] == "simulation" else "mae"
+        rows = block[block["metric"] == metric]
+        base = rows[rows["method"] == BASELINE]["mean"].to_numpy(dtype=float)
+        if base.size != 1 or not np.isfinite(base[0]):
+            continue
+        worse = rows[(rows["method"] != BASELINE) & (rows["mean"].to_numpy(dtype=float) > base[0])]
+        for _, r in worse.iterrows():
+            out.append(f"worse than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}; "
+                       f"{r['target']}, window {r['window']:g}, {r['split']}): its settings do not suit these data")
+    return out
 
 
 def to_markdown(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:

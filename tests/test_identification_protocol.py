@@ -348,3 +348,17 @@ def test_numerical_warnings_of_method_code_become_job_warnings(recs_file, tmp_pa
     assert meta["status"] == "ok"
     assert meta["warnings"] == ["test-noisy: RuntimeWarning: overflow encountered in scalar multiply"]
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]  # none reached the caller
+
+
+def test_a_method_worse_than_the_training_mean_is_named_under_the_table():
+    from enginebench.results.tables import worse_than_baseline
+
+    rows = [("simulation", "naive-mean", "rmse", 1.0), ("simulation", "arx", "rmse", 0.5),
+            ("simulation", "sindy", "rmse", 1.5), ("simulation", "sindy", "mae", 0.1),
+            ("static", "naive-mean", "mae", 2.0), ("static", "krls", "mae", 2.5), ("static", "krls", "rmse", 0.1)]
+    summary = pd.DataFrame([{"dataset": "d", "target": "y", "mode": m, "window": 0.0, "split": "test", "method": me,
+                             "metric": mt, "mean": v} for m, me, mt, v in rows])
+    assert worse_than_baseline(summary) == [
+        "worse than the training mean: sindy (rmse 1.5 vs 1; y, window 0, test): its settings do not suit these data",
+        "worse than the training mean: krls (mae 2.5 vs 2; y, window 0, test): its settings do not suit these data",
+    ]
