@@ -82,16 +82,29 @@ def guard(run_ref: str, baseline: str, tolerance: str, strict: bool, all_rows: b
 @click.option("--output", "-o", required=True, type=click.Path(dir_okay=False), help="Baseline JSON file to write.")
 @click.option("--metrics", default="all", show_default=True, help="Comma-separated metrics to publish, or 'all'.")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")
+@click.option("--measure-tolerance/--no-measure-tolerance", "measure", default=True, show_default=True,
+              help="Rerun the experiment twice under other machines' numerics (other BLAS kernels, no AVX-512 / "
+                   "no AVX, other BLAS threading) and record each method's measured relative tolerance, so that "
+                   "the baseline passes on any supported machine. Takes about twice the run's own time.")
 @store_option
-def publish(run_ref: str, output: str, metrics: str, interval, store) -> None:
-    """Write RUN's summary (mean and interval per metric and method) as a baseline for 'guard'."""
+def publish(run_ref: str, output: str, metrics: str, interval, measure: bool, store) -> None:
+    """Write RUN's summary (mean and interval per metric and method) as a baseline for 'guard'.
+
+    The baseline states the numeric tolerance each method needs to be reproduced on
+    another machine, measured by rerunning the experiment (see --measure-tolerance).
+    """
     from enginebench.results.guard import make_baseline, write_baseline
     from enginebench.results.store import RunStore
 
     check_output(output)
     run = RunStore(store).get(run_ref)
-    doc = make_baseline(run, interval=interval, metric_names=_metric_list(metrics))
+    doc = make_baseline(run, interval=interval, metric_names=_metric_list(metrics), measure_tolerance=measure,
+                        progress=lambda text: click.echo(f"measuring the reproduction tolerance: {text}", err=True))
     path = write_baseline(doc, output)
     methods = sorted({e["method"] for e in doc["entries"]})
     click.echo(f"wrote {path}: {len(doc['entries'])} published values of experiment {doc['experiment']} "
                f"(run {run.id}; methods {', '.join(methods)})")
+    rtol = doc.get("reproducibility", {}).get("rtol")
+    if rtol:
+        click.echo("measured reproduction tolerance (relative, per method): "
+                   + ", ".join(f"{m} {v:.2g}" for m, v in sorted(rtol.items())))

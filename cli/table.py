@@ -122,8 +122,13 @@ def runs_show(run_ref: str, store) -> None:
     from enginebench.results.store import RunStore
     from enginebench.results.tables import summarize
 
+    from enginebench.results.notes import note_lines
+
     run = RunStore(store).get(run_ref)
     info, cfg, env = run.info(), run.config(), run.environment()
+    plugins = run.plugins() or []
+    metrics = run.metrics() if run.job_files() else None  # read first: a damaged job file is the only line printed
+    notes = note_lines(run.job_notes())
     click.echo(f"run {run.id}: {info.get('status')} ({info['finished_jobs'] if 'finished_jobs' in info else len(run.finished_jobs(verify=False))}/{info.get('n_jobs')} jobs, "
                f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
     click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "
@@ -131,17 +136,16 @@ def runs_show(run_ref: str, store) -> None:
     click.echo(f"environment: python {env.get('python')}, {env.get('cpu')} x{env.get('cpu_count')}, gpu {env.get('gpu')}, "
                f"git {env.get('git_commit')}")
     click.echo("packages: " + json.dumps(env.get("packages", {})))
-    for rec in run.plugins() or []:
+    for rec in plugins:
         click.echo(f"plugin file: {rec.get('path')} (sha256 {str(rec.get('sha256'))[:12]}; "
                    f"methods {', '.join(map(str, rec.get('methods', [])))})")
-    from enginebench.results.notes import note_lines
-
-    notes = note_lines(run.job_notes())
     if notes:
         click.echo("\nwhat the jobs said (distinct failure reasons and warnings, with counts):")
         for line in notes:
             click.echo("  " + line)
-    metrics = run.metrics()
+    if metrics is None:
+        click.echo("\nno finished job yet")
+        return
     times = metrics[metrics["metric"].str.startswith("time_")].groupby(["method", "metric"])["value"].mean().unstack()
     click.echo("\nmean seconds per job:\n" + times.round(3).to_string())
     summary = summarize(metrics, interval=cfg.get("interval", "t"))

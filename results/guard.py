@@ -14,31 +14,43 @@ keeps those of its built-in experiments in ``results/published/``)::
       "interval": "t",                       t (Student-t) | bootstrap (percentile)
       "level": 0.95,                         confidence level of the intervals
       "source": {"run": ..., "created": ..., "git_commit": ..., "enginebench": ...},
+      "reproducibility": {                   optional: how the entries' rtol were measured
+        "procedure": "...", "safety_factor": 10,
+        "reruns": [{"name": "avx2-cpu", "description": ..., "env": {...}, "workers": ...,
+                    "dataset_hash": ..., "max_rel_diff": {"krls": 3e-12, "pm": 2.1e-4}}, ...],
+        "max_rel_diff": {"krls": 3e-12, "pm": 2.1e-4}, "rtol": {"krls": 3e-11, "pm": 2.1e-3},
+        "machine": {"cpu": ..., "numpy": ..., "scipy": ...}
+      },
       "entries": [                           one per (target, mode, window, method, split, metric)
         {"target": "NOX", "mode": "static", "window": 0.0, "method": "krls", "split": "test",
          "metric": "mae", "mean": 2.51, "ci_low": 2.47, "ci_high": 2.55, "n_repeats": 30,
-         "n_failed": 0, "lower_is_better": true},
+         "n_failed": 0, "lower_is_better": true, "rtol": 3e-11},
         ...
       ]
     }
 
 ``ci_low``/``ci_high`` are null where no interval exists (one repetition); ``n_failed``
-(failed repetitions of that method) is optional and defaults to 0. The dataset hash is
-taken from the run when it records one (``dataset_hash`` in run.json), else from the
-Parquet footer of the dataset file the run's config names (the cached built-in in the
-data home, or the ``.parquet`` file), else null.
+(failed repetitions of that method) is optional and defaults to 0. ``rtol`` (optional,
+default ``ROUNDING_RTOL``) is the relative numeric tolerance the value needs to be
+reproduced on another machine: measured when publishing by rerunning the experiment under
+the numerics of other CPUs and BLAS threading (``results/reproduce.py``), per method,
+times a safety factor. The dataset hash is taken from the run when it records one
+(``dataset_hash`` in run.json), else from the Parquet footer of the dataset file the
+run's config names (the cached built-in in the data home, or the ``.parquet`` file),
+else null.
 
 Guard rule, per published entry: the bound is ``ci_high`` for a lower-is-better metric
 (``ci_low`` for higher-is-better; the published mean where there is no interval); the
 allowed limit is the bound plus the tolerance (minus, for higher-is-better). The
 tolerance is absolute (``0.05``: metric units) or relative (``5%``: of the published
-mean's magnitude). An entry is ``regressed`` when the run's mean is beyond the limit,
-``missing`` when the run has no value for it (an excess within ``ROUNDING_RTOL`` of the
-values' magnitude is rounding, not a regression: the same computation on another BLAS
-build or CPU differs in the last digits, and a deterministic method's interval is a point), ``more failures`` when the run has more
-failed repetitions than published; otherwise ``ok``. Values of the run that the
-baseline does not list are ignored. A different experiment, config hash or dataset
-hash, or an unfinished run, gives a warning (a failure with ``strict``).
+mean's magnitude). An entry is ``regressed`` when the run's mean is beyond the limit by
+more than its reproduction noise, ``rtol`` times max(|limit|, |run mean|) (at least
+``ROUNDING_RTOL``: the same computation on another BLAS build or CPU differs in the last
+digits, and a deterministic method's interval is a point); ``missing`` when the run has
+no value for it; ``more failures`` when the run has more failed repetitions than
+published; otherwise ``ok``. Values of the run that the baseline does not list are
+ignored. A different experiment, config hash or dataset hash, an unfinished run, or a
+baseline that states no measured tolerance gives a warning (a failure with ``strict``).
 """
 
 from __future__ import annotations
@@ -55,6 +67,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import DataError
+from enginebench.results import reproduce
 from enginebench.results.output import write_output
 from enginebench.results.compare import JOIN, lower_is_better, num, text_table
 from enginebench.results.tables import summarize
@@ -101,18 +114,28 @@ def _finite_or_none(x: Any) -> float | None:
 
 def baseline_from_summary(summary: pd.DataFrame, *, experiment: str, config_hash: str, dataset: str,
                           dataset_variant: str = "", dataset_hash: str | None = None, interval: str = "t",
-                          level: float = 0.95, source: dict[str, Any] | None = None) -> dict[str, Any]:
-    """A baseline document from a ``tables.summarize`` frame (one entry per summary row)."""
+                          level: float = 0.95, source: dict[str, Any] | None = None,
+                          reproducibility: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A baseline document from a ``tables.summarize`` frame (one entry per summary row).
+
+    With ``reproducibility`` (``results.reproduce.measure``) each entry gets its method's
+    measured ``rtol`` and the record is kept in the document.
+    """
     rows = summary.sort_values(["target", "mode", "window", "split", "method", "metric"], kind="stable")
+    rtol = (reproducibility or {}).get("rtol", {})
     entries = [{
         "target": str(r.target), "mode": str(r.mode), "window": float(r.window), "method": str(r.method),
         "split": str(r.split), "metric": str(r.metric), "mean": float(r.mean),
         "ci_low": _finite_or_none(r.ci_low), "ci_high": _finite_or_none(r.ci_high),
         "n_repeats": int(r.n_repeats), "n_failed": int(r.n_failed), "lower_is_better": lower_is_better(str(r.metric)),
+        **({"rtol": float(rtol[str(r.method)])} if str(r.method) in rtol else {}),
     } for r in rows.itertuples()]
-    return {"format": FORMAT, "version": VERSION, "experiment": experiment, "config_hash": config_hash,
-            "dataset": dataset, "dataset_variant": dataset_variant, "dataset_hash": dataset_hash,
-            "interval": interval, "level": level, "source": source or {}, "entries": entries}
+    doc = {"format": FORMAT, "version": VERSION, "experiment": experiment, "config_hash": config_hash,
+           "dataset": dataset, "dataset_variant": dataset_variant, "dataset_hash": dataset_hash,
+           "interval": interval, "level": level, "source": source or {}}
+    if reproducibility is not None:
+        doc["reproducibility"] = reproducibility
+    return {**doc, "entries": entries}
 
 
 def dataset_hash(run) -> str | None:
@@ -136,8 +159,13 @@ def dataset_hash(run) -> str | None:
         return None
 
 
-def make_baseline(run, *, interval: str | None = None, metric_names: Sequence[str] | None = None) -> dict[str, Any]:
-    """The baseline of a stored run (``results.store.Run``), optionally restricted to some metrics."""
+def make_baseline(run, *, interval: str | None = None, metric_names: Sequence[str] | None = None,
+                  measure_tolerance: bool = False, perturbations=None, progress=None) -> dict[str, Any]:
+    """The baseline of a stored run (``results.store.Run``), optionally restricted to some metrics.
+
+    ``measure_tolerance`` reruns the experiment under other machines' numerics
+    (``results.reproduce``) and records each method's measured ``rtol``.
+    """
     from enginebench import __version__
 
     cfg, info, env = run.config(), run.info(), run.environment()
@@ -150,10 +178,15 @@ def make_baseline(run, *, interval: str | None = None, metric_names: Sequence[st
         summary = summary[summary["metric"].isin(metric_names)]
     source = {"run": run.id, "created": info.get("created"), "published": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
               "status": info.get("status"), "git_commit": env.get("git_commit"), "enginebench": __version__}
+    reproducibility = None
+    if measure_tolerance:
+        from enginebench.results.reproduce import measure
+
+        reproducibility = measure(run, summary, interval=interval, perturbations=perturbations, progress=progress)
     return baseline_from_summary(summary, experiment=str(cfg.get("name", info.get("name", ""))),
                                  config_hash=str(info.get("config_hash", "")), dataset=str(cfg.get("dataset", "")),
                                  dataset_variant=str(cfg.get("dataset_variant", "") or ""), dataset_hash=dataset_hash(run),
-                                 interval=interval, source=source)
+                                 interval=interval, source=source, reproducibility=reproducibility)
 
 
 def write_baseline(baseline: dict[str, Any], path: str | Path) -> Path:
@@ -210,6 +243,9 @@ def load_baseline(path: str | Path) -> dict[str, Any]:
     for key in ("experiment", "config_hash", "interval"):
         if not isinstance(doc.get(key), str):
             raise _bad(path, "the top level", f"needs key {key!r} as a string, got {doc.get(key)!r}")
+    if "reproducibility" in doc and not isinstance(doc["reproducibility"], dict):
+        raise _bad(path, "key 'reproducibility'", f"must be an object (how the tolerances were measured), got "
+                                                  f"{doc['reproducibility']!r}")
     entries = doc.get("entries")
     if not isinstance(entries, list) or not entries:
         raise _bad(path, "key 'entries'", "must be a non-empty list of published values")
@@ -234,6 +270,11 @@ def load_baseline(path: str | Path) -> dict[str, Any]:
             if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "n_repeats" else 0):
                 raise _bad(path, where, f"key {key!r} must be a {'positive' if key == 'n_repeats' else 'non-negative'} integer, got {value!r}")
             row[key] = value
+        rtol = e.get("rtol", ROUNDING_RTOL)
+        if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not math.isfinite(rtol) or not 0 <= rtol < 1:
+            raise _bad(path, where, f"key 'rtol' must be a number in [0, 1) (the value's relative reproduction "
+                                    f"tolerance), got {rtol!r}")
+        row["rtol"] = max(float(rtol), ROUNDING_RTOL)
         if not isinstance(e.get("lower_is_better"), bool):
             raise _bad(path, where, f"key 'lower_is_better' must be true or false, got {e.get('lower_is_better')!r}")
         row["lower_is_better"] = e["lower_is_better"]
@@ -275,8 +316,9 @@ def parse_tolerance(text: str | float | None) -> Tolerance:
 
 
 STATUS_ORDER = ("regressed", "more failures", "missing", "ok")
-ROUNDING_RTOL = 1e-9
-"""Excess up to this fraction of max(|limit|, |run mean|) is floating-point rounding, not a regression."""
+ROUNDING_RTOL = reproduce.ROUNDING_RTOL
+"""Excess up to this fraction of max(|limit|, |run mean|) is floating-point rounding, not a regression
+(an entry's measured ``rtol`` raises it)."""
 
 
 @dataclass
@@ -288,6 +330,8 @@ class GuardResult:
     warnings: list[str] = field(default_factory=list)
     strict: bool = False
     ignored: int = 0
+    rtol: str = ""
+    """The baseline's measured reproduction tolerance per method, as text ('' when it states none)."""
 
     @property
     def failures(self) -> pd.DataFrame:
@@ -322,7 +366,8 @@ def check(baseline: dict[str, Any], summary: pd.DataFrame, tolerance: Tolerance 
     with np.errstate(divide="ignore", invalid="ignore"):
         m["excess_rel"] = np.where(mean != 0, m["excess"] / np.abs(mean), np.nan)
     missing = m["run_mean"].isna().to_numpy()
-    rounding = ROUNDING_RTOL * np.maximum(np.abs(m["limit"].to_numpy(dtype=float)), np.abs(value))
+    rtol = m["rtol"].fillna(ROUNDING_RTOL).to_numpy(dtype=float) if "rtol" in m else np.full(len(m), ROUNDING_RTOL)
+    rounding = np.maximum(rtol, ROUNDING_RTOL) * np.maximum(np.abs(m["limit"].to_numpy(dtype=float)), np.abs(value))
     regressed = ~missing & (m["excess"].to_numpy(dtype=float) > rounding)
     failures = ~missing & (m["run_n_failed"].fillna(0).to_numpy() > m["n_failed"].to_numpy())
     m["status"] = np.select([missing, regressed, failures], ["missing", "regressed", "more failures"], "ok")
@@ -345,7 +390,18 @@ def guard_run(run, baseline: dict[str, Any], tolerance: Tolerance = Tolerance(),
         warnings.append(f"the dataset differs from the published one (content hash {run_hash[:12]} vs {published_hash[:12]})")
     if info.get("status") != "finished":
         warnings.append(f"run {run.id} is {info.get('status')} ({info.get('finished_jobs', '?')}/{info.get('n_jobs', '?')} jobs)")
-    return GuardResult(rows, tolerance, warnings, strict, ignored)
+    if "reproducibility" not in baseline:
+        warnings.append("the baseline states no measured reproduction tolerance (published before they were measured): "
+                        "last-digit differences of another machine may fail it; republish it with 'enginebench publish'")
+    return GuardResult(rows, tolerance, warnings, strict, ignored, rtol_note(baseline))
+
+
+def rtol_note(baseline: dict[str, Any]) -> str:
+    """The baseline's measured tolerance per method, for the verdict line ('' when none was measured)."""
+    measured = (baseline.get("reproducibility") or {}).get("rtol")
+    if not isinstance(measured, dict) or not measured:
+        return ""
+    return ", ".join(f"{m} {float(v):.2g}" for m, v in sorted(measured.items()))
 
 
 def _published(r) -> str:
@@ -370,6 +426,8 @@ def report(result: GuardResult, run_id: str = "", baseline_path: str = "", all_r
     else:
         lines.append(f"guard FAILED: run{where}{against}: {len(failed)} of {len(rows)} published values fail ({counts}); "
                      f"tolerance {result.tolerance}")
+    if result.rtol:
+        lines.append(f"reproduction tolerance (relative, measured when published, per method): {result.rtol}")
     lines += [f"warning: {w}" for w in result.warnings]
     shown = rows if all_rows else failed
     if shown.empty:

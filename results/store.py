@@ -31,9 +31,10 @@ Faults, and what the store does about them:
   unreadable): ``Run.damage()`` says why, ``runs list`` shows it as damaged, and
   ``latest`` is the newest run that is *not* damaged; reading it by id is one line;
 * two processes writing one run (two ``run --resume`` at once): the writer holds an OS
-  lock (``fcntl.flock`` on ``run.lock`` in the run folder, holding the writer's pid) from
-  the moment the run is marked running until it is marked finished or interrupted, or
-  its process dies; another writer gets a StoreError naming the run and the holder's pid;
+  lock (``fcntl.flock`` on ``run.lock`` in the run folder, holding the writer's pid, and
+  present only while held) from the moment the run is marked running until it is marked
+  finished or interrupted, or its process dies; another writer gets a StoreError naming
+  the run and the holder's pid;
 * plugin files: a new run records the path and SHA-256 of every plugin file providing
   one of its methods (``plugins`` in run.json); ``Run.check_plugins`` refuses to resume
   or re-fit a run whose plugin files are absent, changed, not loaded, or new.
@@ -290,40 +291,56 @@ class Run:
     def lock(self) -> None:
         """Take the run's write lock for this process, or fail with the holder's pid (no-op when held already).
 
-        An OS lock (``fcntl.flock``) on ``run.lock``: the kernel releases it when the
-        process dies, so a killed run can be resumed at once. Where the file system has
-        no locks (or the platform no ``fcntl``) the run is written unlocked.
+        An OS lock (``fcntl.flock``) on ``run.lock``, which exists only while a writer
+        holds it: the holder removes it before releasing, and a process that locked a
+        file already removed tries again. The kernel releases the lock when the process
+        dies (a killed run can be resumed at once; its stale file is reused). Where the
+        file system has no locks (or the platform no ``fcntl``) the run is written unlocked.
         """
         key = _lock_key(self.path)
         if key in _HELD or fcntl is None:
             return
         path = self.path / LOCK_FILE
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise _write_failed(path, exc, self.store, "the run's lock file", "run again") from exc
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            holder = _lock_holder(fd)
-            os.close(fd)
-            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise StoreError(
-                    f"run {self.id} is being written by another process (pid {holder}, lock {path}); "
-                    f"wait for it to end (or stop it), then `enginebench run --resume {self.id}` if it is unfinished"
-                ) from None
-            return  # no locks on this file system
-        try:
-            os.ftruncate(fd, 0)
-            os.write(fd, f"{os.getpid()}\n".encode())
-        except OSError:
-            pass  # the pid is only for messages
-        _HELD[key] = fd
+        for _ in range(100):
+            try:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise _write_failed(path, exc, self.store, "the run's lock file", "run again") from exc
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                holder = _lock_holder(fd)
+                os.close(fd)
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise StoreError(
+                        f"run {self.id} is being written by another process (pid {holder}, lock {path}); "
+                        f"wait for it to end (or stop it), then `enginebench run --resume {self.id}` if it is unfinished"
+                    ) from None
+                return  # no locks on this file system
+            try:
+                current = os.stat(path).st_ino
+            except FileNotFoundError:
+                current = None
+            if current != os.fstat(fd).st_ino:  # the previous holder removed this file as we locked it
+                os.close(fd)
+                continue
+            try:
+                os.ftruncate(fd, 0)
+                os.write(fd, f"{os.getpid()}\n".encode())
+            except OSError:
+                pass  # the pid is only for messages
+            _HELD[key] = fd
+            return
+        raise StoreError(f"run {self.id}: cannot take the lock {path} (it keeps being replaced); run again")
 
     def unlock(self) -> None:
-        """Release the run's write lock if this process holds it."""
+        """Release the run's write lock if this process holds it (its lock file is removed first)."""
         fd = _HELD.pop(_lock_key(self.path), None)
         if fd is not None:
+            try:
+                (self.path / LOCK_FILE).unlink(missing_ok=True)
+            except OSError:
+                pass  # a folder that is gone (runs rm) or read-only: the lock is released anyway
             try:
                 fcntl.flock(fd, fcntl.LOCK_UN)
             finally:

@@ -421,3 +421,21 @@ def test_a_run_being_written_is_locked_against_a_second_writer_until_its_process
     out = CliRunner().invoke(cli, ["run", "--resume", run.id, "-j", "1", "-q", "--store", str(store.root)])
     assert out.exit_code == 0, out.output
     assert run.info()["status"] == "finished" and len(run.finished_jobs()) == 6 and not run.holds_lock()
+    assert not (run.path / "run.lock").exists()  # the lock file lives only while a writer holds it
+
+
+def test_a_refused_writer_leaves_the_store_as_it_was(finished_run):
+    _, run = finished_run
+    before = {p: p.read_bytes() for p in run.store.rglob("*") if p.is_file()}
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout.readline().strip() == b"locked"
+        with pytest.raises(StoreError, match="being written by another process"):
+            run.update_info(note="x")
+    finally:
+        holder.kill()
+        holder.wait()
+    after = {p: p.read_bytes() for p in run.store.rglob("*") if p.is_file()}
+    assert set(after) - set(before) == {run.path / "run.lock"}  # the dead holder's stale file, reused by the next
+    run.update_info(note="x")
+    assert not (run.path / "run.lock").exists() and run.info()["note"] == "x"
