@@ -23,11 +23,14 @@ the window only simulated outputs are fed back. The recursion is run by
 in C), one call per segment. A run that leaves the envelope around the training outputs
 or goes non-finite (an unstable A(q)) is held and flagged diverged (``methods/freerun.py``).
 
-Default orders (no option given), in samples: na and nb from {1, 2, 4, 8, 16}, keeping the
-orders the training data can carry (at most ``max_order``, a quarter of the shortest
-training segment, and a tenth as many parameters as training rows; see
-``freerun.derived_orders``), nk from {0, 1}. The toolkit's selection picks (na, nb, nk) on
-the free-run error of validation blocks, like every hyperparameter.
+Default orders (no option given), in samples: na = nb = ``order`` from {1, 2, 4, ..., 128},
+keeping the orders the training data can carry (at most ``max_order``, a quarter of the
+shortest training segment, and a tenth as many parameters as training rows; see
+``freerun.derived_orders``), nk from {0, 1}: 16 candidates at most. Orders are tied so that
+the grid can reach the long memories of lightly damped systems sampled fast (F-16 at
+400 Hz wants order ~64) without a product grid; options ``na`` and ``nb`` (numbers or
+lists) search them separately instead. The toolkit's selection picks the orders on the
+free-run error of validation blocks, like every hyperparameter.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_
 
 NAME = "arx"
 DEFAULT_NK = (0, 1)
+ORDER_BASE = (1, 2, 4, 8, 16, 32, 64, 128)
 
 
 @dataclass(frozen=True)
@@ -145,7 +149,7 @@ class ARX(Method):
     name = NAME
     family = "baseline"
     modes = frozenset({"simulation"})
-    summary = "linear ARX (orders na, nb, nk searched), least squares, simulated in free run from the init window"
+    summary = "linear ARX (order, delay searched), least squares, simulated in free run from the init window"
 
     @classmethod
     def default_options(cls) -> dict[str, Any]:
@@ -153,7 +157,7 @@ class ARX(Method):
             "na": None,  # output lags: None = derived grid, a number, or a list
             "nb": None,  # input lags per input (>= 1)
             "nk": None,  # input delay in samples: None = (0, 1)
-            "max_order": 16,  # cap of the derived na/nb grid
+            "max_order": 128,  # cap of the derived order grid
             "envelope": 10.0,  # divergence: leaving [min - e span, max + e span] of the training outputs
         }
 
@@ -171,26 +175,33 @@ class ARX(Method):
             raise MethodError(f"method {NAME!r}: option envelope must be a positive number, got {env!r}")
 
     def search_space(self, data: Samples) -> SearchSpace:
-        """na, nb from the options or derived from the training data (module docstring); nk (0, 1) by default."""
+        """Tied order (na = nb) derived from the training data, or na and nb from the options; nk (0, 1) by default."""
         sizes = [len(s) for s in data.segments] or [0]
-        derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_order"]))
+        derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_order"]),
+                                 ORDER_BASE)
+        nk = self._orders["nk"] if self._orders["nk"] is not None else list(DEFAULT_NK)
+        if self._orders["na"] is None and self._orders["nb"] is None:
+            return {"order": np.array(derived), "nk": np.array(nk)}
         na = self._orders["na"] if self._orders["na"] is not None else derived
         nb = self._orders["nb"] if self._orders["nb"] is not None else derived
-        nk = self._orders["nk"] if self._orders["nk"] is not None else list(DEFAULT_NK)
         return {"na": np.array(na), "nb": np.array(nb), "nk": np.array(nk)}
 
     @staticmethod
     def _orders_of(params: Params) -> tuple[int, int, int]:
-        missing = [k for k in ("na", "nb", "nk") if k not in params]
+        """(na, nb, nk) of a grid point: ``order`` sets na = nb unless they are given."""
+        unknown = sorted(set(params) - {"order", "na", "nb", "nk"})
+        if unknown:
+            raise MethodError(f"method {NAME!r}: unknown hyperparameter(s) {', '.join(unknown)}; "
+                              "it has order (or na and nb) and nk")
+        given = {"na": params.get("na", params.get("order")), "nb": params.get("nb", params.get("order")),
+                 "nk": params.get("nk")}
+        missing = [k for k, v in given.items() if v is None]
         if missing:
             raise MethodError(f"method {NAME!r}: hyperparameter(s) {', '.join(missing)} missing from {dict(params)!r}; "
-                              "give na, nb and nk (samples)")
-        unknown = sorted(set(params) - {"na", "nb", "nk"})
-        if unknown:
-            raise MethodError(f"method {NAME!r}: unknown hyperparameter(s) {', '.join(unknown)}; it has na, nb, nk")
+                              "give order (or na and nb) and nk (samples)")
         values = []
         for key, low in (("na", 0), ("nb", 1), ("nk", 0)):
-            v = params[key]
+            v = given[key]
             if isinstance(v, (bool, np.bool_)) or np.ndim(v) or not float(v).is_integer() or v < low:
                 raise MethodError(f"method {NAME!r}: hyperparameter {key} must be a whole number >= {low}, got {v!r}")
             values.append(int(v))

@@ -163,13 +163,23 @@ def test_predict_grid_is_fit_then_predict_for_every_point():
 
 def test_order_grid_is_derived_from_the_training_data():
     big = sim_samples(linear_raw(3, 300))
-    # 300-row segments: o <= 75 and 3 o + 1 <= 90 parameters keep every base order
-    assert ARX().search_space(big)["na"].tolist() == [1, 2, 4, 8, 16]
+    # 300-row segments: o <= 75 and 3 o + 1 <= 90 parameters keep 1 .. 16 of the base orders
+    space = ARX().search_space(big)
+    assert space["order"].tolist() == [1, 2, 4, 8, 16] and space["nk"].tolist() == [0, 1] and "na" not in space
     small = sim_samples(linear_raw(3, 30))  # o <= 7 and 3 o + 1 <= 9: orders 1 and 2
-    space = ARX().search_space(small)
-    assert space["na"].tolist() == [1, 2] and space["nk"].tolist() == [0, 1]
+    assert ARX().search_space(small)["order"].tolist() == [1, 2]
+    assert ARX(max_order=4).search_space(big)["order"].tolist() == [1, 2, 4]
     fixed = ARX(na=3, nb=[2, 5], nk=1).search_space(big)
     assert [fixed[k].tolist() for k in ("na", "nb", "nk")] == [[3], [2, 5], [1]]
+    one = ARX(na=2).search_space(big)
+    assert one["na"].tolist() == [2] and one["nb"].tolist() == [1, 2, 4, 8, 16]
+
+
+def test_a_tied_order_is_na_equal_nb(fitted):
+    train = sim_samples(linear_raw())
+    tied = ARX().fit(train, {"order": 2, "nk": 1}, np.random.default_rng(0))
+    np.testing.assert_array_equal(tied.a, fitted.a)
+    np.testing.assert_array_equal(tied.b, fitted.b)
 
 
 @pytest.mark.parametrize("options, fragment", [
