@@ -135,3 +135,85 @@ def test_runs_show_and_rm(runner, tmp_path, toy_parquet):
     assert gone.exit_code == 0 and gone.output.strip() == f"deleted {run_id}"
     missing = runner.invoke(cli, ["runs", "show", run_id])
     assert missing.exit_code == 2 and missing.output.startswith(f"error: no run {run_id!r}")
+
+
+NOISY_PLUGIN = '''
+import warnings
+import numpy as np
+from enginebench.methods.base import Method
+
+class Warner(Method):
+    """Training mean, with a warning."""
+    name = "warner"
+    family = "baseline"
+    def fit(self, train, params, rng):
+        warnings.warn("careful with this one")
+        return np.mean(train.y, axis=0)
+    def predict(self, fitted, data):
+        return [np.tile(fitted, (len(s), 1)) for s in data.segments]
+
+class Breaker(Warner):
+    """Always fails."""
+    name = "breaker"
+    def fit(self, train, params, rng):
+        raise ValueError("boom " + "x" * 250)
+'''
+
+
+def test_table_and_runs_show_list_failure_reasons_and_warnings(runner, tmp_path, toy_parquet):
+    """Issue 12 item 6: the reasons are in view under every table, not only inside job files."""
+    plugin = tmp_path / "noisy.py"
+    plugin.write_text(NOISY_PLUGIN)
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'dataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 60\n'
+                   '[selection]\nkind = "none"\n[methods.naive-mean]\n[methods.warner]\n[methods.breaker]\n')
+    out = runner.invoke(cli, ["run", str(exp), "-j", "1", "-q", "--plugin", str(plugin)])
+    assert out.exit_code == 1, out.output  # every job of breaker failed
+    reason = "ValueError: boom " + "x" * 250
+    failed = f"failed (2 jobs): breaker: {reason[:197]}..."  # short under a table, whole in `runs show`
+    warned = "warning (2 jobs): warner: UserWarning: careful with this one"
+    term = runner.invoke(cli, ["table", "latest"])
+    assert term.exit_code == 0 and failed in term.output.splitlines() and warned in term.output.splitlines()
+    md = runner.invoke(cli, ["table", "latest", "--format", "md"])
+    assert md.output.rstrip().splitlines()[-2:] == [failed, warned]
+    csv = runner.invoke(cli, ["table", "latest", "--format", "csv"])
+    assert failed not in csv.stdout and csv.stderr.splitlines() == [failed, warned]
+    pd.read_csv(__import__("io").StringIO(csv.stdout))  # still a CSV
+    shown = runner.invoke(cli, ["runs", "show", "latest"])
+    assert f"  failed (2 jobs): breaker: {reason}" in shown.output.splitlines()
+    assert "  " + warned in shown.output.splitlines()
+    assert f"plugin file: {plugin.resolve()}" in shown.output
+
+
+def test_output_paths_are_checked_before_any_work(runner, tmp_path, toy_parquet):
+    """Issue 14 item 2: a missing folder for -o is one error line, for every command that writes a file."""
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'dataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 60\n'
+                   '[selection]\nkind = "none"\n[methods.naive-mean]\n')
+    assert runner.invoke(cli, ["run", str(exp), "-j", "1", "-q"]).exit_code == 0
+    missing = tmp_path / "missing_dir" / "x.csv"
+    for args in (["table", "latest", "--format", "csv", "-o", missing], ["compare", "latest", "latest", "-o", missing],
+                 ["layout", "latest", "-o", missing], ["publish", "latest", "-o", missing],
+                 ["calibrate", "pm", "-o", missing]):
+        out = runner.invoke(cli, [str(a) for a in args])
+        assert out.exit_code == 2, (args, out.output)
+        assert out.output == (f"error: cannot write {missing}: folder {missing.parent} does not exist; create it or "
+                              "choose another path (--output)\n"), args
+    out = runner.invoke(cli, ["learning-curve", str(exp), "--plot", str(missing.with_suffix(".png")), "-q"])
+    assert out.exit_code == 2 and "(--plot)" in out.output
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    out = runner.invoke(cli, ["report", "latest", "-o", str(blocker / "rep"), "--no-figures"])
+    assert out.exit_code == 2 and out.output.startswith(f"error: cannot create the folder {blocker / 'rep'} (")
+    good = tmp_path / "t.csv"
+    assert runner.invoke(cli, ["table", "latest", "--format", "csv", "-o", str(good)]).exit_code == 0
+    assert good.read_text().startswith("dataset,") and [p.name for p in tmp_path.glob(".t.csv*")] == []
+
+
+def test_usage_errors_are_one_error_line(runner):
+    out = runner.invoke(cli, ["table", "--format", "pdf"])
+    assert out.exit_code == 2
+    assert out.output == ("error: Invalid value for '--format': 'pdf' is not one of 'term', 'md', 'latex', 'csv', "
+                          "'html'; see 'cli table --help'\n")
+    out = runner.invoke(cli, ["runs"])  # a group alone still shows its help
+    assert "Usage: " in out.output and "Commands:" in out.output
