@@ -448,3 +448,28 @@ def test_shipped_baseline_matches_the_builtin_quick_experiment(name):
     assert {"mae", "rmae", "mape", "ppmcc"} <= set(entries["metric"])
     with pytest.raises(BaselineError, match="file not found"):
         load_baseline("gas-turbine-nox-full")
+
+
+@pytest.mark.slow
+def test_the_marine_baseline_passes_a_run_on_an_emulated_older_cpu(tmp_path):
+    """End to end: the PM (and naive mean) of marine-diesel-egt-quick computed as on an SSE-only CPU with other BLAS
+    kernels, data generated there too, pass the shipped baseline; a PM 1 % worse would not (see the test above)."""
+    import os
+    import subprocess
+    import sys
+
+    from enginebench.results.reproduce import default_perturbations
+
+    older = default_perturbations()[1]
+    env = {**os.environ, **older.env, "ENGINEBENCH_DATA": str(tmp_path / "data"), "ENGINEBENCH_STORE": str(tmp_path / "runs")}
+    proc = subprocess.run([sys.executable, "-c", "from enginebench.cli.main import main; main()", "run",
+                           "marine-diesel-egt-quick", "--methods", "naive-mean,pm", "-q", "-j", "1"],
+                          env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (run,) = RunStore(tmp_path / "runs").runs()
+    doc = load_baseline("marine-diesel-egt-quick")
+    doc = {**doc, "entries": [e for e in doc["entries"] if e["method"] in ("naive-mean", "pm")]}
+    rows, _ = check(doc, summarize(run.metrics(), interval="t"))
+    assert (rows["status"] == "ok").all(), rows[rows["status"] != "ok"].to_string()
+    moved = (rows["run_mean"] - rows["mean"]).abs() / rows["mean"].abs()
+    assert moved[rows["method"] == "pm"].max() > 1e-5  # the emulation did move the PM's digits
