@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from enginebench.cli.options import check_output, emit, store_option
+from enginebench.cli.options import check_metrics, check_output, emit, store_option
 
 
 def _metric_list(text: str | None) -> list[str] | None:
@@ -39,7 +39,10 @@ def compare(run_a: str, run_b: str, metrics: str, fmt: str, interval, output, st
 
     check_output(output)
     rs = RunStore(store)
-    cmp = compare_runs(rs.get(run_a), rs.get(run_b), interval=interval, metric_names=_metric_list(metrics))
+    wanted = _metric_list(metrics)
+    cmp = compare_runs(rs.get(run_a), rs.get(run_b), interval=interval, metric_names=wanted)
+    if wanted and "metric" in cmp.table:
+        check_metrics(wanted, cmp.table["metric"], "--metrics", "")
     if fmt == "csv":
         text = cmp.table.to_csv(index=False)
     else:

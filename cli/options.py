@@ -76,5 +76,5 @@ def check_metrics(requested: Iterable[str], available: Iterable[str], option: st
     have = sorted(set(available))
     unknown = [m for m in requested if m not in have]
     if unknown:
-        where = f"run {run_id} has" if run_id else "the run has"
+        where = f"run {run_id} has" if run_id else "the runs have"
         raise DataError(f"{option}: unknown metric(s) {', '.join(unknown)}; {where} {', '.join(have)}")

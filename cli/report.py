@@ -43,7 +43,8 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
     chosen = split_list(methods) or None
     cols = split_list(metrics)
     have = run.metrics()["metric"]
-    check_metrics(cols, have, "--metrics", run.id)
+    if click.get_current_context().get_parameter_source("metrics") is not click.core.ParameterSource.DEFAULT:
+        check_metrics(cols, have, "--metrics", run.id)  # the default columns are shown where the run has them
     if paired_metric:
         check_metrics([paired_metric], have, "--paired", run.id)
     output_folder(out_dir)

@@ -305,6 +305,7 @@ CLI = [
     ("compare-unknown-b", ["compare", "latest", "nope"], "nope"),
     ("compare-format-unknown", ["compare", "latest", "latest", "--format", "xml"], "--format"),
     ("compare-metrics-unknown", ["compare", "latest", "latest", "--metrics", "bogus"], "bogus"),
+    ("compare-metrics-one-unknown", ["compare", "latest", "latest", "--metrics", "mae,bogus"], "bogus"),
     ("compare-output-missing-folder", ["compare", "latest", "latest", "-o", "{case}/nodir/c.txt"], "nodir"),
     ("guard-no-baseline", ["guard", "latest"], "--baseline"),
     ("guard-baseline-unknown", ["guard", "latest", "-b", "no-such-baseline"], "no-such-baseline"),
