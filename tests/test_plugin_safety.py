@@ -45,8 +45,9 @@ def plugin_text(name: str = "median", extra: str = "", offset: float = 0.0) -> s
 @pytest.fixture(autouse=True)
 def clean_registry(monkeypatch):
     """Plugins registered by one test must not leak into the next (one pytest process)."""
-    monkeypatch.setattr(registry, "_extra", dict(registry._extra))
-    monkeypatch.setattr(registry, "_origin", dict(registry._origin))
+    # plugin files loaded by earlier tests of this process are forgotten (a fresh command line knows none)
+    monkeypatch.setattr(registry, "_extra", {k: v for k, v in registry._extra.items() if k not in registry._origin})
+    monkeypatch.setattr(registry, "_origin", {})
 
 
 @pytest.fixture
