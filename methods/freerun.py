@@ -92,9 +92,6 @@ def init_window(who: str, s: SegmentSamples, n_targets: int) -> np.ndarray:
         row, _ = _first_bad(window)
         raise MethodError(f"method {who!r}: segment {s.id!r} has a nan/inf measured output in its init window "
                           f"(row {row}); clean the record or move the window")
-    if len(window) >= len(s.t):
-        raise MethodError(f"method {who!r}: segment {s.id!r} has {len(s.t)} rows, not more than its init window "
-                          f"of {len(window)}; nothing is left to simulate")
     return window
 
 
