@@ -229,6 +229,7 @@ def run_experiment(
         todo = jobs
     else:
         run = resume
+        run.lock()  # before anything is touched: a second writer of this run is refused, naming the holder
         for stale in run.jobs_dir.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
             stale.unlink(missing_ok=True)
         damaged = run.damaged_jobs()

@@ -193,6 +193,8 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
     targets = [targets] if isinstance(targets, str) else targets
     _expect(isinstance(targets, list) and targets and all(isinstance(t, str) for t in targets), origin,
             "'targets' must be a non-empty list of column names")
+    twice = sorted({t for t in targets if targets.count(t) > 1})
+    _expect(not twice, origin, f"'targets' lists {', '.join(map(repr, twice))} more than once")
     methods = raw["methods"]
     methods = [methods] if isinstance(methods, str) else methods
     _expect(isinstance(methods, list) and methods and all(isinstance(m, str) for m in methods), origin,
@@ -265,7 +267,12 @@ def load_spec(ref: str | Path) -> ExperimentSpec:
     else:
         if not path.is_file():
             raise SpecError(f"{path}: experiment file not found")
-        text, origin, base = path.read_text(), str(path), path.parent
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise SpecError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the experiment as UTF-8"
+                            ) from None
+        origin, base = str(path), path.parent
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

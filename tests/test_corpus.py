@@ -110,11 +110,7 @@ def case(id: str, args: list[str], expect: str, setup=None, own_store: bool = Fa
     CASES.append(Case(id, args, expect, setup, own_store, known))
 
 
-KNOWN = {
-    "experiment-targets-twice": "experiments/spec.py accepts targets = ['y', 'y']: 4 jobs planned, 2 job files "
-                                "(the second job of each key silently replaces the first)",
-    "experiment-file-not-utf8": "experiments/spec.py load_spec: UnicodeDecodeError traceback for a spec that is not UTF-8",
-}
+KNOWN: dict[str, str] = {}
 
 
 # -- CSV data and import specs ---------------------------------------------------------------------------
@@ -536,7 +532,8 @@ def _release_holders():
 @pytest.fixture(autouse=True)
 def _clean_registry(monkeypatch):
     # plugin files loaded by earlier tests of this process are forgotten (a fresh command line knows none)
-    monkeypatch.setattr(registry, "_extra", {k: v for k, v in registry._extra.items() if k not in registry._origin})
+    monkeypatch.setattr(registry, "_extra", {k: v for k, v in registry._extra.items()
+                                             if k not in registry._origin and not v.__module__.startswith("enginebench_plugin_")})
     monkeypatch.setattr(registry, "_origin", {})
 
 

@@ -46,7 +46,8 @@ def plugin_text(name: str = "median", extra: str = "", offset: float = 0.0) -> s
 def clean_registry(monkeypatch):
     """Plugins registered by one test must not leak into the next (one pytest process)."""
     # plugin files loaded by earlier tests of this process are forgotten (a fresh command line knows none)
-    monkeypatch.setattr(registry, "_extra", {k: v for k, v in registry._extra.items() if k not in registry._origin})
+    monkeypatch.setattr(registry, "_extra", {k: v for k, v in registry._extra.items()
+                                             if k not in registry._origin and not v.__module__.startswith("enginebench_plugin_")})
     monkeypatch.setattr(registry, "_origin", {})
 
 
