@@ -2,21 +2,27 @@
 
 Model, per target y (one MISO model per target; its own past outputs, every input)::
 
-    y(t) = f( y(t-na), ..., y(t-1), u_j(t-nk), ..., u_j(t-nk-nb+1) for each input j )
-    f(z) = sum_i beta_i exp(-(gamma / d) |z - c_i|^2)
+    y(t) = a . [y(t-1) .. y(t-na)] + sum_j b_j . [u_j(t-nk) .. u_j(t-nk-nb+1)] + c0      (linear ARX part)
+           + f( y(t-ka), ..., y(t-1), u_j(t-nk), ..., u_j(t-nk-kb+1) for each input j )  (kernel part)
+    f(z) = sum_i beta_i exp(-(gamma / d) |z - c_i|^2),   ka = min(na, kernel_lags), kb = min(nb, kernel_lags)
 
 on standardised signals (each signal's training mean and standard deviation, the same
-for all of its lags), d the number of regressors, so one relative ``gamma`` grid suits
-every order. Training is one step ahead on measured outputs (the equation-error fit);
-rows start where all lags lie inside their training segment. The target is the
-standardised output, not centred further: the ridge shrinks towards the training mean.
+for all of its lags), d the number of kernel regressors, so one relative ``gamma`` grid
+suits every order. The linear part is unpenalised and fitted jointly with the kernel
+(a semi-parametric kernel ridge: ``nystroem_ridge``): it carries the long memory of
+lightly damped systems sampled fast (F-16 at 400 Hz wants ~64 lags), which a Gaussian
+kernel in 128 dimensions could not learn from a record, while the kernel, on at most
+``kernel_lags`` lags of each signal, models the nonlinearity. ``linear = false`` leaves
+the kernel alone. Training is one step ahead on measured outputs (the equation-error
+fit); rows start where all lags lie inside their training segment.
 
-Solvers: up to ``exact_max_rows`` regression rows, exact KRLS (the centres c_i are all
-rows, one factorisation per gamma serves every lambda: ``methods/shifted.py``); above,
+Solvers: up to ``exact_max_rows`` regression rows, exact (the centres c_i are all rows);
+above,
 ``centres`` Nystroem centres drawn uniformly without replacement with the job's generator
 (as FALKON draws them, ``methods/falkon.py``) and the Nystroem problem
-min |K_nm beta - y|^2 + lambda beta^T K_mm beta solved directly (``nystroem_ridge``: ridge
-on the features K_nm V s^-1/2, one eigendecomposition per gamma serves every lambda).
+min |K_nm beta + Phi theta - y|^2 + lambda beta^T K_mm beta (Phi the linear regressors)
+solved directly (``nystroem_ridge``: ridge on the features K_nm V s^-1/2 with Phi
+projected out, one eigendecomposition per gamma serves every lambda).
 Direct, because free-run selection prefers small gamma and lambda, where FALKON's
 conjugate gradient had not converged after 50 iterations on Silverbox (relative residual
 0.016 at gamma = 0.03, lambda = 1e-10): its early stop would be a hidden regulariser.
@@ -32,25 +38,27 @@ output-lag history with the centres, one addition of the input part, one exp2 an
 product with the coefficients. The input part of the exponent does not depend on the
 simulated outputs, so it is computed for blocks of time steps at once (a matrix
 product); the |z|^2 terms are folded into both products (the history stores y and y^2),
-so the exponent is -(gamma/d) |z - c|^2 <= 0 exactly as written and f stays bounded: a
-run cannot overflow. Divergence, a run leaving the envelope [min - e span, max + e span]
-of the training outputs, is flagged and the run held at its last in-envelope value
+so the exponent is -(gamma/d) |z - c|^2 <= 0 exactly as written and f stays bounded; the
+linear part is added from the same history. An unstable linear part can still blow a run
+up: a run leaving the envelope [min - e span, max + e span] of the training outputs, or
+turning non-finite, is flagged and held at its last in-envelope value
 (``methods/freerun.py``), as for ``sindy``.
 
 Selection: the toolkit scores ``predict_grid``'s free runs on validation blocks, so
 orders and kernel hyperparameters are chosen on simulation error, not one-step error.
 
 Defaults derived from the data:
-- lags (na = nb, in samples) from {2, 4, 8, 16} where the training data carry them
+- lags (na = nb, in samples) from {2, 4, 8, 16, 32, 64} where the training data carry them
   (``freerun.derived_orders``: at most a quarter of the shortest training segment and a
   tenth as many regressors as rows, at most ``max_lag``); nk = 0 (u(t) is a regressor,
-  which also covers a one-sample delay). Options na, nb, nk fix or list them instead.
+  which also covers a one-sample delay); the kernel reads at most 8 of them. Options na,
+  nb, nk fix or list them instead.
 - gamma relative to d on standardised signals, {0.001, 0.01, 0.1, 1}, and lambda
   relative to the number of regression rows (lambda = lambda_rel x rows, the per-row
   convention), {1e-12, 1e-10, ..., 1e-4}: free-run selection favours smooth maps with
   little regularisation, so both grids reach far down. Neither grid depends on the
   signals' units, the sampling rate or the record length.
-- exact KRLS up to 2,000 rows, else 500 Nystroem centres on at most 20,000 rows (on
+- exact up to 2,000 rows, else 500 Nystroem centres on at most 20,000 rows (on
   Silverbox 1,000 centres gave the same free-run error: at the small gammas selected the
   centres' kernel matrix has numerical rank ~100-250 anyway; a step costs half as much).
 """
@@ -71,10 +79,9 @@ from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredict
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
                                          option_orders, training_trajectories)
 from enginebench.methods.kernels import check_positive, gaussian, sq_distances
-from enginebench.methods.shifted import ridge_solutions
 
 NAME = "narx"
-LAG_BASE = (2, 4, 8, 16)
+LAG_BASE = (2, 4, 8, 16, 32, 64)
 NYSTROEM_RTOL = 1e-10
 """Eigenvalues of K_mm below this fraction of the largest are dropped (Nystroem pseudo-inverse)."""
 CHUNK_MIB = 32.0
@@ -85,11 +92,22 @@ LN2 = math.log(2.0)
 # --------------------------------------------------------------------------- fitted model
 @dataclass(frozen=True)
 class KernelModel:
-    """One target's f: centres (m, d) in the layout [y(t-na) .. y(t-1), u_1 lags, u_2 lags, ...], standardised."""
+    """One target's model, standardised: a linear ARX part plus the kernel sum f.
+
+    The linear part reads y(t-1..t-na) (``a[i-1]`` multiplies y(t-i)), u_j(t-nk..t-nk-nb+1)
+    (``b[j, l]`` multiplies u_j(t-nk-l)) and a constant ``c0``; all zero without it. The
+    kernel reads the last ``ka`` outputs and ``kb`` input lags: centres (m, ka + inputs x kb)
+    in the layout [y(t-ka) .. y(t-1), u_1(t-nk) .. u_1(t-nk-kb+1), u_2 ...].
+    """
 
     na: int
     nb: int
     nk: int
+    ka: int
+    kb: int
+    a: np.ndarray
+    b: np.ndarray
+    c0: float
     centres: np.ndarray
     beta: np.ndarray
     gamma: float
@@ -187,7 +205,7 @@ def free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], window
     See ``_free_run``; BLAS runs single-threaded here: each step's products are far too
     small for threads, which would only add synchronisation to every step.
     """
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):  # blow-ups are flagged later
         return _free_run(models, inputs, windows, lengths)
 
 
@@ -207,7 +225,7 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     order = np.argsort(-lengths, kind="stable")  # longest first: live segments are a prefix
     sorted_len = lengths[order]
     na_max = max(m.na for m in models)
-    lu = max(m.nk + m.nb - 1 for m in models)
+    lu = max(m.nk + m.kb - 1 for m in models)
     c = inputs[0].shape[1]
     du = c * (lu + 1)
     m_max = max(len(m.beta) for m in models)
@@ -219,18 +237,33 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     beta = np.zeros((G, m_max, 1))
     for g, m in enumerate(models):
         s, k = m.s, len(m.beta)
-        cy, cu = m.centres[:, :m.na], m.centres[:, m.na:]
-        for i in range(1, m.na + 1):  # lag i sits at history position na_max - i
+        cy, cu = m.centres[:, :m.ka], m.centres[:, m.ka:]
+        for i in range(1, m.ka + 1):  # lag i sits at history position na_max - i
             p = na_max - i
-            Cy[g, 2 * p, :k] = 2 * s * cy[:, m.na - i]
+            Cy[g, 2 * p, :k] = 2 * s * cy[:, m.ka - i]
             Cy[g, 2 * p + 1, :k] = -s
         for j in range(c):
-            for l in range(m.nb):
+            for l in range(m.kb):
                 col = j * (lu + 1) + m.nk + l
-                Cu[g, col, :k] = 2 * s * cu[:, j * m.nb + l]
+                Cu[g, col, :k] = 2 * s * cu[:, j * m.kb + l]
                 Cu[g, du + col, :k] = -s
         Cu[g, 2 * du, :k] = -s * (m.centres ** 2).sum(axis=1)
         beta[g, :k, 0] = m.beta
+
+    # the linear part: output lags as a history product, inputs and constant precomputed for every step
+    Ay = np.zeros((G, na_max, 1))
+    ll = max(m.nk + m.nb - 1 for m in models)
+    Bl = np.zeros((c * (ll + 1), G))
+    c0 = np.array([m.c0 for m in models])
+    for g, m in enumerate(models):
+        Ay[g, na_max - np.arange(1, m.na + 1), 0] = m.a
+        for j in range(c):
+            Bl[j * (ll + 1) + m.nk + np.arange(m.nb), g] = m.b[j]
+    linear = bool(Ay.any() or Bl.any() or c0.any())
+    V = np.zeros((S, T, G))
+    if linear:
+        for r, s_idx in enumerate(order):
+            V[r] = _input_lags(inputs[s_idx], ll, T) @ Bl + c0
 
     Zu = np.zeros((S, T, 2 * du + 1))
     for r, s_idx in enumerate(order):
@@ -252,6 +285,8 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     Cy1, H1 = Cy[0], H[0, 0]
     Cu2 = np.ascontiguousarray(Cu.transpose(1, 0, 2).reshape(2 * du + 1, G * m_max))
     beta1 = beta[0, :, 0]
+    ay1 = Ay[0, :, 0]
+    H0 = H[..., 0]  # the outputs alone, (G, S, na_max + T) strided view
     for t0 in range(N, T, steps):
         t1 = min(T, t0 + steps)
         live = int(np.searchsorted(-sorted_len, -(t0 + 1), side="right"))  # segments with row t0
@@ -259,12 +294,14 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
         # columns (model, centre); a step then adds its row to the history product and takes one exp2
         P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2).reshape(live, t1 - t0, G, m_max)
         if G == 1 and live == 1:  # the common predict case, in 1-D operations (half the overhead)
-            P1 = P[0, :, 0]
+            P1, V1, h1 = P[0, :, 0], V[0, :, 0], H0[0, 0]
             for t in range(t0, t1):
                 np.dot(H1[t:t + na_max].reshape(-1), Cy1, out=e1)
                 e1 += P1[t - t0]
                 np.exp2(e1, out=e1)
                 v = float(np.dot(e1, beta1))
+                if linear:
+                    v += float(np.dot(h1[t:t + na_max], ay1)) + V1[t]
                 H1[na_max + t, 0] = v
                 H1[na_max + t, 1] = v * v
             continue
@@ -278,6 +315,9 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
             np.exp2(E, out=E)
             y = y_buf[:, :live] if live < S else y_buf
             np.matmul(E, beta, out=y)
+            if linear:
+                y += np.matmul(H0[:, :live, t:t + na_max], Ay)
+                y += V[:live, t].T[..., None]
             H[:, :live, na_max + t, 0] = y[..., 0]
             np.square(y[..., 0], out=H[:, :live, na_max + t, 1])
     out = np.empty((G, S, T))
@@ -286,30 +326,43 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
 
 
 def nystroem_ridge(Z: np.ndarray, y: np.ndarray, C: np.ndarray, gamma: float, lambdas: np.ndarray,
-                   block_rows: int = 4096) -> tuple[np.ndarray, int]:
-    """Nystroem kernel ridge: beta (L, m) minimising |K_nm beta - y|^2 + lambda beta^T K_mm beta for each lambda.
+                   Phi: np.ndarray | None = None, block_rows: int = 4096
+                   ) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """Nystroem kernel ridge with an optional unpenalised linear part, for every lambda.
 
-    Solved directly, not iteratively: with K_mm = V diag(s) V^T (components with s below
-    ``NYSTROEM_RTOL`` x max s dropped, the pseudo-inverse convention) and T = V s^-1/2, the
-    problem is ridge regression on the features F = K_nm T (n x r): beta = T w with
-    (F^T F + lambda I) w = F^T y. F^T F and F^T y are accumulated over row blocks (K_nm is
-    never held whole) and one eigendecomposition of F^T F serves every lambda. Returns the
-    coefficients and the rank r kept.
+    Minimises |K_nm beta + Phi theta - y|^2 + lambda beta^T K_mm beta. Solved directly, not
+    iteratively: with K_mm = V diag(s) V^T (components with s below ``NYSTROEM_RTOL`` x max s
+    dropped, the pseudo-inverse convention) and T = V s^-1/2, beta = T w and the problem is
+    ridge regression on the features F = K_nm T (n x r) with Phi unpenalised: Phi is
+    projected out of F and y (its orthonormal basis from a pivoted QR), one
+    eigendecomposition of the projected F^T F serves every lambda, and theta is the least
+    squares fit of Phi to what the kernel leaves. With every row a centre (C = Z) and no
+    Phi this is exact KRLS. Returns beta (L, m), theta (L, p) or None, and the rank r.
     """
     s, V = scipy.linalg.eigh(gaussian(sq_distances(C), gamma))
     keep = s > NYSTROEM_RTOL * s.max()
     T = V[:, keep] / np.sqrt(s[keep])
     r = T.shape[1]
-    A, b = np.zeros((r, r)), np.zeros(r)
+    F = np.empty((len(Z), r))
     for a in range(0, len(Z), block_rows):
-        F = gaussian(sq_distances(Z[a:a + block_rows], C), gamma) @ T
-        A += F.T @ F
-        b += F.T @ y[a:a + block_rows]
-    ev, W = scipy.linalg.eigh(A)
+        F[a:a + block_rows] = gaussian(sq_distances(Z[a:a + block_rows], C), gamma) @ T
+    Fp, yp = F, y
+    if Phi is not None:
+        Q, R, _ = scipy.linalg.qr(Phi, mode="economic", pivoting=True)
+        diag = np.abs(np.diag(R))
+        Q = Q[:, :int(np.sum(diag > diag.max() * 1e-12 * max(Phi.shape)))] if diag.size and diag.max() > 0 else Q[:, :0]
+        Fp = F - Q @ (Q.T @ F)
+        yp = y - Q @ (Q.T @ y)
+    ev, W = scipy.linalg.eigh(Fp.T @ Fp)
     ev = np.maximum(ev, 0.0)
-    Wb = W.T @ b
-    betas = np.stack([T @ (W @ (Wb / (ev + lam))) for lam in np.asarray(lambdas, dtype=np.float64)])
-    return betas, r
+    Wb = W.T @ (Fp.T @ yp)
+    ws = [W @ (Wb / (ev + lam)) for lam in np.asarray(lambdas, dtype=np.float64)]
+    betas = np.stack([T @ w for w in ws])
+    thetas = None
+    if Phi is not None:
+        thetas = np.stack([scipy.linalg.lstsq(Phi, y - F @ w, lapack_driver="gelsd", check_finite=False)[0]
+                           for w in ws])
+    return betas, thetas, r
 
 
 # --------------------------------------------------------------------------- method
@@ -328,7 +381,9 @@ class NARX(Method):
             "na": None,  # output lags (samples): None = tied to nb on a derived grid, a number or a list
             "nb": None,  # input lags per input (>= 1)
             "nk": 0,  # input delay (samples): u(t - nk) is the newest input regressor
-            "max_lag": 16,  # cap of the derived lag grid
+            "max_lag": 64,  # cap of the derived lag grid
+            "kernel_lags": 8,  # the kernel reads at most this many lags of each signal (the linear part all)
+            "linear": True,  # an unpenalised linear ARX part beside the kernel
             "gamma_grid": (-3.0, 0.0, 4),  # log10 of gamma relative to the regressor count d
             "lambda_grid": (-12.0, -4.0, 5),  # log10 of lambda relative to the number of regression rows
             "exact_max_rows": 2000,  # exact KRLS up to this many rows, Nystroem + FALKON above
@@ -348,7 +403,9 @@ class NARX(Method):
                               "use nfir for a model of inputs only)")
         for key in ("gamma_grid", "lambda_grid"):
             check_log_grid_option(NAME, key, o[key])
-        for key, low in (("max_lag", 1), ("exact_max_rows", 1), ("centres", 1), ("max_rows", 0)):
+        if not isinstance(o["linear"], (bool, np.bool_)):
+            raise MethodError(f"method {NAME!r}: option linear must be true or false, got {o['linear']!r}")
+        for key, low in (("max_lag", 1), ("kernel_lags", 1), ("exact_max_rows", 1), ("centres", 1), ("max_rows", 0)):
             v = o[key]
             if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < low:
                 raise MethodError(f"method {NAME!r}: option {key} must be a whole number >= {low}, got {v!r}")
@@ -408,62 +465,64 @@ class NARX(Method):
             return np.arange(n)
         return np.sort(rng.choice(n, size=cap, replace=False))
 
-    def _solve(self, Z: np.ndarray, y: np.ndarray, centres: np.ndarray | None, gamma: float, lambdas: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, str, dict[str, Any]]:
-        """Centres (m, d) and coefficients (L, m) for every relative lambda at one relative gamma.
-
-        ``centres`` None: exact KRLS on all rows; else the Nystroem solution on those rows of Z.
-        """
-        n, d = Z.shape
-        g_abs = gamma / d
-        lam_abs = np.asarray(lambdas, dtype=np.float64) * n
-        if centres is None:
-            alpha, _ = ridge_solutions(gaussian(sq_distances(Z), g_abs), y[:, None], lam_abs, overwrite=True)
-            return Z, np.moveaxis(alpha[:, :, 0], 1, 0), "exact", {}
-        C = Z[centres]
-        betas, rank = nystroem_ridge(Z, y, C, g_abs, lam_abs)
-        return C, betas, "nystroem", {"nystroem_rank": rank}
+    def _kernel_lags(self, na: int, nb: int) -> tuple[int, int]:
+        cap = int(self.options["kernel_lags"])
+        return min(na, cap), min(nb, cap)
 
     def _models(self, std: _Standardised, k: int, points: Sequence[tuple[int, int, int, float, float]],
                 rng: np.random.Generator, strict: bool = True
                 ) -> tuple[list[list[KernelModel] | None], str, int, dict[str, Any]]:
-        """Kernel models for every point (one per target), sharing regressors per order and solves per gamma.
+        """Models for every point (one per target), sharing regressors per order and solves per gamma.
 
         With ``strict=False`` (selection) orders that leave too few regression rows give
         None for their points instead of an error: they score +inf, the others go on.
         """
         out: list[list[KernelModel | None]] = [[None] * k for _ in points]
         solver, n_rows, info = "exact", 0, {}
+        linear = bool(self.options["linear"])
+        c = len(std.u_mean)
         by_orders: dict[tuple[int, int, int], list[int]] = {}
         for i, (na, nb, nk, _, _) in enumerate(points):
             by_orders.setdefault((na, nb, nk), []).append(i)
         for (na, nb, nk), members in by_orders.items():
+            ka, kb = self._kernel_lags(na, nb)
+            # kernel columns of the full lag matrix: the last ka output lags, the first kb lags of each input
+            kcols = list(range(na - ka, na)) + [na + j * nb + l for j in range(c) for l in range(kb)]
             for target in range(k):
                 Z, y = regressors(std.traj, target, na, nb, nk)
-                if len(y) < 2 and not strict:
+                need = 2 + (Z.shape[1] + 1 if linear else 0)
+                if len(y) < need and not strict:
                     for i in members:
                         out[i] = None  # type: ignore[call-overload]
                     break
-                if len(y) < 2:
+                if len(y) < need:
                     longest = max(len(tr.Y) for tr in std.traj)
                     raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {len(y)} regression rows "
-                                      f"(longest training segment {longest} rows); use fewer lags")
+                                      f"for {need - 1} linear parameters (longest training segment {longest} rows); "
+                                      "use fewer lags")
                 rows = self._rows(len(y), rng)
                 Z, y = Z[rows], y[rows]
                 n_rows = len(y)
-                centres = None
+                Zk = np.ascontiguousarray(Z[:, kcols])
+                Phi = np.hstack([Z, np.ones((n_rows, 1))]) if linear else None
                 if n_rows > int(self.options["exact_max_rows"]):  # one draw serves every gamma of these regressors
-                    centres = np.sort(rng.choice(n_rows, size=min(int(self.options["centres"]), n_rows),
-                                                 replace=False))
+                    centres = np.sort(rng.choice(n_rows, size=min(int(self.options["centres"]), n_rows), replace=False))
+                    C, solver = Zk[centres], "nystroem"
+                else:
+                    C, solver = Zk, "exact"
                 gammas = np.array([points[i][3] for i in members])
                 for gamma in dict.fromkeys(gammas.tolist()):
                     idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
                     lams = np.array([points[i][4] for i in idx])
-                    centres_, betas, solver, info = self._solve(Z, y, centres, gamma, lams)
-                    for i, b, lam in zip(idx, betas, lams):
-                        out[i][target] = KernelModel(na=na, nb=nb, nk=nk, centres=np.ascontiguousarray(centres_),
-                                                     beta=np.ascontiguousarray(b), gamma=gamma,
-                                                     lam=float(lam), target=target)
+                    betas, thetas, rank = nystroem_ridge(Zk, y, C, gamma / Zk.shape[1], lams * n_rows, Phi)
+                    info = {"kernel_rank": rank}
+                    for pos, (i, lam) in enumerate(zip(idx, lams)):
+                        th = thetas[pos] if thetas is not None else np.zeros(Z.shape[1] + 1)
+                        out[i][target] = KernelModel(
+                            na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=np.ascontiguousarray(th[:na][::-1]),
+                            b=np.ascontiguousarray(th[na:na + c * nb].reshape(c, nb)), c0=float(th[-1]),
+                            centres=np.ascontiguousarray(C), beta=np.ascontiguousarray(betas[pos]), gamma=gamma,
+                            lam=float(lam), target=target)
         return out, solver, n_rows, info  # type: ignore[return-value]
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> NARXFit:
@@ -539,17 +598,26 @@ class NARX(Method):
         return out
 
     def describe(self, fitted: NARXFit) -> dict[str, Any]:
+        """Orders, kernel hyperparameters, the linear part (standardised) with its poles, solver facts."""
         m = fitted.models[0]
+        linear = {}
+        for name, mod in zip(fitted.target_names, fitted.models):
+            poles = np.roots(np.r_[1.0, -mod.a]) if mod.a.any() else np.empty(0)
+            radius = float(np.abs(poles).max()) if poles.size else 0.0
+            linear[name] = {"a": mod.a.tolist(), "b": mod.b.tolist(), "c0": mod.c0, "max_pole_modulus": radius,
+                            "stable": bool(radius < 1.0)}
         return {
-            "na": m.na, "nb": m.nb, "nk": m.nk,
+            "na": m.na, "nb": m.nb, "nk": m.nk, "kernel_lags": [m.ka, m.kb],
             "gamma_relative": m.gamma, "gamma": m.gamma / m.d,
             "lambda_relative": m.lam, "lambda": m.lam * fitted.n_rows,
             "regressors": m.d,
             "solver": fitted.solver,
             "centres": int(len(m.beta)),
             "regression_rows": fitted.n_rows,
-            "model": "y(t) = sum_i beta_i exp(-gamma |z(t) - c_i|^2), z(t) = standardised [y(t-na)..y(t-1), "
-                     "u(t-nk)..u(t-nk-nb+1)], one model per target",
+            "model": "y(t) = a . [y(t-1)..y(t-na)] + b . [u(t-nk)..u(t-nk-nb+1)] + c0 + sum_i beta_i exp(-gamma "
+                     "|z(t) - c_i|^2), z(t) = [y(t-ka)..y(t-1), u(t-nk)..u(t-nk-kb+1)], standardised signals, "
+                     "one model per target",
+            "linear_part": linear if bool(self.options["linear"]) else None,
             "standardisation": {"y_mean": fitted.y_mean.tolist(), "y_std": fitted.y_std.tolist(),
                                 "u_mean": fitted.u_mean.tolist(), "u_std": fitted.u_std.tolist()},
             "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},

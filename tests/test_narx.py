@@ -55,13 +55,15 @@ def fitted(data) -> NARXFit:
 
 
 def reference_run(fit: NARXFit, U: np.ndarray, window: np.ndarray) -> np.ndarray:
-    """The free run written out step by step: standardise, build z(t) (edge padded), evaluate the kernel sum."""
+    """The free run written out step by step: standardise, build z(t) (edge padded), linear part + kernel sum."""
     m = fit.models[0]
     ys = list((window[:, 0] - fit.y_mean[0]) / fit.y_std[0])
     us = (U[:, 0] - fit.u_mean[0]) / fit.u_std[0]
     for t in range(len(window), len(U)):
-        z = np.r_[[ys[max(t - i, 0)] for i in range(m.na, 0, -1)], [us[max(t - m.nk - l, 0)] for l in range(m.nb)]]
-        ys.append(float(np.exp(-m.gamma / m.d * ((m.centres - z) ** 2).sum(axis=1)) @ m.beta))
+        z = np.r_[[ys[max(t - i, 0)] for i in range(m.ka, 0, -1)], [us[max(t - m.nk - l, 0)] for l in range(m.kb)]]
+        lin = sum(m.a[i - 1] * ys[max(t - i, 0)] for i in range(1, m.na + 1)) + m.c0 \
+            + sum(m.b[0, l] * us[max(t - m.nk - l, 0)] for l in range(m.nb))
+        ys.append(lin + float(np.exp(-m.gamma / m.d * ((m.centres - z) ** 2).sum(axis=1)) @ m.beta))
     return np.array(ys) * fit.y_std[0] + fit.y_mean[0]
 
 
@@ -81,6 +83,27 @@ def test_nystroem_free_run_equals_the_reference_too(data):
     assert fit.solver == "nystroem" and fit.models[0].centres.shape == (60, 5)
     seg = test.segments[1]
     pred = m.predict(fit, test.without_targets())[1][:, 0]
+    np.testing.assert_allclose(pred, reference_run(fit, seg.U, seg.y_init)[5:], rtol=0, atol=1e-10)
+
+
+def test_a_long_linear_part_beside_a_short_kernel_equals_the_reference(data):
+    train, test = data
+    m = NARX(kernel_lags=2)
+    fit = m.fit(train, {"lags": 6, "nk": 0, "gamma": 0.3, "lambda": 1e-6}, np.random.default_rng(0))
+    mod = fit.models[0]
+    assert (mod.na, mod.nb, mod.ka, mod.kb, mod.d) == (6, 6, 2, 2, 4) and np.any(mod.a)
+    seg = test.segments[0]
+    pred = m.predict(fit, test.without_targets())[0][:, 0]
+    np.testing.assert_allclose(pred, reference_run(fit, seg.U, seg.y_init)[5:], rtol=0, atol=1e-10)
+
+
+def test_without_the_linear_part_the_kernel_fits_alone(data):
+    train, test = data
+    fit = NARX(linear=False).fit(train, PARAMS, np.random.default_rng(0))
+    mod = fit.models[0]
+    assert not mod.a.any() and not mod.b.any() and mod.c0 == 0.0
+    seg = test.segments[1]
+    pred = NARX(linear=False).predict(fit, test.without_targets())[1][:, 0]
     np.testing.assert_allclose(pred, reference_run(fit, seg.U, seg.y_init)[5:], rtol=0, atol=1e-10)
 
 
@@ -152,7 +175,7 @@ def test_a_run_leaving_the_envelope_is_held_and_flagged(data, fitted):
 def test_grid_is_derived_from_the_data(data):
     train, _ = data
     space = NARX().search_space(train)
-    assert space["lags"].tolist() == [2, 4, 8, 16]  # 300-row segments: lag <= 75, 2 lag + 1 <= 90 regressors
+    assert space["lags"].tolist() == [2, 4, 8, 16, 32]  # 300-row segments: lag <= 75, 2 lag + 1 <= 90 regressors
     assert space["nk"].tolist() == [0] and len(space["gamma"]) == 4 and len(space["lambda"]) == 5
     short = NARX().search_space(samples(nonlinear_raw(2, 40)))
     assert short["lags"].tolist() == [2]  # lag <= 10 and 2 lag + 1 <= 8 regressors
@@ -200,11 +223,19 @@ def test_nystroem_with_every_row_as_a_centre_is_exact_krls():
     rng = np.random.default_rng(0)
     Z, y = rng.normal(size=(60, 3)), rng.normal(size=60)
     lambdas = np.array([1e-3, 1e-1])
-    betas, rank = nystroem_ridge(Z, y, Z, 0.5, lambdas, block_rows=7)
+    betas, thetas, rank = nystroem_ridge(Z, y, Z, 0.5, lambdas, block_rows=7)
     K = gaussian(sq_distances(Z), 0.5)
-    assert rank == 60
+    assert rank == 60 and thetas is None
     for beta, lam in zip(betas, lambdas):
         np.testing.assert_allclose(beta, np.linalg.solve(K + lam * np.eye(60), y), rtol=1e-6, atol=1e-8)
+    # with an unpenalised linear part: the semi-parametric system [[K + lam I, Phi], [Phi^T, 0]] [beta; theta] = [y; 0]
+    Phi = np.hstack([Z, np.ones((60, 1))])
+    betas, thetas, _ = nystroem_ridge(Z, y, Z, 0.5, lambdas, Phi, block_rows=7)
+    for beta, theta, lam in zip(betas, thetas, lambdas):
+        block = np.block([[K + lam * np.eye(60), Phi], [Phi.T, np.zeros((4, 4))]])
+        ref = np.linalg.solve(block, np.r_[y, np.zeros(4)])
+        np.testing.assert_allclose(beta, ref[:60], rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(theta, ref[60:], rtol=1e-6, atol=1e-7)
 
 
 def test_selection_skips_lags_the_fitting_pieces_cannot_carry():
