@@ -12,8 +12,10 @@ from enginebench.results.output import output_folder
 @click.argument("run_ref", metavar="RUN", default="latest")
 @click.option("--output", "-o", "out_dir", type=click.Path(file_okay=False), required=True,
               help="Folder for index.html, table.csv and the PNG figures.")
-@click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True, help="Comma-separated metric columns of the table.")
-@click.option("--paired", "paired_metric", default="mae", show_default=True, help="Metric for the paired tests ('' to skip).")
+@click.option("--metrics", default=None, help="Comma-separated metric columns of the table "
+              "[default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
+@click.option("--paired", "paired_metric", default=None,
+              help="Metric for the paired tests ('' to skip) [default: rmse for a simulation-mode run, else mae].")
 @click.option("--figures/--no-figures", default=True, show_default=True,
               help="Draw figures (re-fits one repetition; --no-figures writes the tables only).")
 @click.option("--repetition", type=click.IntRange(min=0), default=0, show_default=True,
@@ -41,9 +43,9 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
     if figures:  # the figures re-fit the run's methods: with the code that made the run
         run.check_plugins("re-fitted for the report's figures (--no-figures writes the tables only)")
     chosen = split_list(methods) or None
-    cols = split_list(metrics)
+    cols = split_list(metrics) or None
     have = run.metrics()["metric"]
-    if click.get_current_context().get_parameter_source("metrics") is not click.core.ParameterSource.DEFAULT:
+    if cols:
         check_metrics(cols, have, "--metrics", run.id)  # the default columns are shown where the run has them
     if paired_metric:
         check_metrics([paired_metric], have, "--paired", run.id)

@@ -87,7 +87,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     summary = summarize(raw, interval=spec.interval)
     out = Console()
     out.print(to_rich(summary, title=f"{spec.name} ({spec.dataset}, {spec.mode})"))
-    from enginebench.experiments.report import default_paired_metric
+    from enginebench.results.tables import default_paired_metric
 
     paired_metric = default_paired_metric(spec.mode)
     click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric), nl=False)

@@ -14,8 +14,9 @@ from enginebench.cli.options import check_metrics, check_output, emit, split_lis
 @click.option("--metrics", default=None, help="Comma-separated metric columns (wide formats) "
               "[default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")
-@click.option("--paired", "paired_metric", default="mae", show_default=True,
-              help="Metric for the paired tests printed under term/md tables ('' to skip).")
+@click.option("--paired", "paired_metric", default=None,
+              help="Metric for the paired tests printed under term/md tables ('' to skip) "
+                   "[default: rmse for a simulation-mode run, else mae].")
 @click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
 @store_option
 def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, store) -> None:
@@ -33,6 +34,8 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     summary = tables.summarize(raw, interval=interval)
+    if paired_metric is None:
+        paired_metric = tables.default_paired_metric(str(run.config().get("mode", "")))
     cols = split_list(metrics) or None
     if cols:
         check_metrics(cols, summary["metric"], "--metrics", run.id)

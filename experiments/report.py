@@ -329,11 +329,6 @@ def _page(run: Run, summary: pd.DataFrame, metrics_cols: Sequence[str], paired: 
     return "".join(parts)
 
 
-def default_paired_metric(mode: str) -> str:
-    """The metric the paired tests use by default: the simulation error's rmse, else mae."""
-    return "rmse" if mode == "simulation" else "mae"
-
-
 def write_report(
     run: Run,
     out_dir: str | Path,
@@ -364,7 +359,7 @@ def write_report(
     summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
     metrics = list(metrics) if metrics else tables.default_metrics(summary)
     if paired_metric is None:
-        paired_metric = default_paired_metric(cfg.get("mode", ""))
+        paired_metric = tables.default_paired_metric(cfg.get("mode", ""))
     table_path = out / TABLE_FILE
     table_path.write_text(tables.to_csv(summary), encoding="utf-8")
     paired = tables.paired_tests(raw, paired_metric) if paired_metric else None

@@ -50,6 +50,11 @@ def default_metrics(summary: pd.DataFrame) -> tuple[str, ...]:
     return DEFAULT_METRICS
 
 
+def default_paired_metric(mode: str) -> str:
+    """The metric the paired tests use by default: the simulation error's rmse, else mae."""
+    return "rmse" if mode == "simulation" else "mae"
+
+
 def with_skill(ok: pd.DataFrame) -> pd.DataFrame:
     """Add skill_<m> = 1 - m / m_baseline rows, paired on repetition (undefined where the baseline's error is 0)."""
     base = ok[(ok["method"] == BASELINE) & ok["metric"].isin(SKILL_OF)]
