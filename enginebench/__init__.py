@@ -1,4 +1,7 @@
-"""enginebench: benchmark physical, data-driven and hybrid engine models under one protocol."""
+"""enginebench: benchmark physical, data-driven and hybrid engine models under one protocol.
+
+Method authors (plugins) import from ``enginebench.api``, the stable public surface.
+"""
 
 from importlib.metadata import PackageNotFoundError, version
 

@@ -1,6 +1,6 @@
 """The example method passes enginebench's conformance suite."""
 
-from enginebench.testing import check_method
+from enginebench.api import check_method
 
 from enginebench_example import Ridge
 

@@ -12,9 +12,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
-from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, check_log_grid_option, log_grid, split_rows
+from enginebench.api import (Method, MethodError, Params, Samples, SearchSpace, check_log_grid_option, log_grid,
+                             split_rows)
 
 
 @dataclass(frozen=True)

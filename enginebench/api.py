@@ -1,0 +1,50 @@
+"""The public surface for method authors: everything a plugin needs, from one import.
+
+A plugin (a ``--plugin file.py`` or a package registered under the ``enginebench.methods``
+entry point group) imports from here only::
+
+    from enginebench.api import Method, MethodError, SegmentPredictions, log_grid, split_rows
+
+Names here are kept stable across releases; the modules they come from (methods.base,
+datasets.samples, testing) are internal and may move. ``check_method`` is the
+conformance suite for a plugin's tests; ``SamplePool``/``RawSegments``/``tiny_samples``
+build samples for tests of one's own.
+"""
+
+from __future__ import annotations
+
+from enginebench.datasets.samples import RawSegments, SamplePool, Samples, SegmentSamples
+from enginebench.errors import MethodError
+from enginebench.methods.base import (
+    FAMILIES,
+    Method,
+    Params,
+    SearchSpace,
+    SegmentPredictions,
+    check_log_grid_option,
+    grid_points,
+    log_grid,
+    split_rows,
+)
+from enginebench.testing import ConformanceError, ConformanceReport, check_method, tiny_samples
+
+__all__ = [
+    "FAMILIES",
+    "ConformanceError",
+    "ConformanceReport",
+    "Method",
+    "MethodError",
+    "Params",
+    "RawSegments",
+    "SamplePool",
+    "Samples",
+    "SearchSpace",
+    "SegmentPredictions",
+    "SegmentSamples",
+    "check_log_grid_option",
+    "check_method",
+    "grid_points",
+    "log_grid",
+    "split_rows",
+    "tiny_samples",
+]
