@@ -1,30 +1,45 @@
-"""``enginebench layout`` (a run's table in a seed's layout) and ``enginebench plots`` (trajectory figures)."""
+"""``enginebench layout`` (a run's table in a source paper's layout) and ``enginebench plots`` (trajectory figures)."""
 
 from __future__ import annotations
 
 import click
 
 from enginebench.cli.options import check_output, emit, load_plugins, plugin_option, split_list, store_option
+from enginebench.papers import LAYOUT_PAPERS, LEGACY_FLAGS, deprecated
 from enginebench.results.output import output_folder
+
+
+def _paper(paper: str | None, legacy: str | None) -> str:
+    """The layout asked for: --paper, or an old --seedNNN flag (one note), turboshaft-moe by default."""
+    if legacy is None:
+        return paper or "turboshaft-moe"
+    new = LEGACY_FLAGS[legacy]
+    if paper is not None and paper != new:
+        raise click.UsageError(f"--paper {paper} and --{legacy} ask for different layouts; give --paper only")
+    click.echo(deprecated(f"--{legacy}", f"--paper {new}"), err=True)
+    return new
 
 
 @click.command()
 @click.argument("run_refs", metavar="RUN...", nargs=-1, required=True)
-@click.option("--seed003", "layout", flag_value="seed003", default=True,
-              help="Turboshaft paper, Tables 2-3: RMAE mean ± SD, median, IQR over trajectories (validation, test).")
-@click.option("--seed000", "layout", flag_value="seed000",
-              help="Diesel paper, Tables 8-9: rows Δ x model; MAE, MAPE, PPMCC mean ± 95% CI (test).")
+@click.option("--paper", type=click.Choice(LAYOUT_PAPERS), default=None,
+              help="Whose tables: turboshaft-moe (Tables 2-3: RMAE mean ± SD, median, IQR over trajectories, "
+                   "validation and test) or egt-hybrid (Tables 8-9: rows Δ x model; MAE, MAPE, PPMCC mean ± 95% CI, "
+                   "test). See docs/papers.md.  [default: turboshaft-moe]")
+@click.option("--seed003", "legacy", flag_value="seed003", hidden=True, help="Deprecated: --paper turboshaft-moe.")
+@click.option("--seed000", "legacy", flag_value="seed000", hidden=True, help="Deprecated: --paper egt-hybrid.")
 @click.option("--literature/--no-literature", default=True, show_default=True,
               help="Add the paper's own rows, labelled as literature (confidential data; not comparable).")
 @click.option("--format", "fmt", type=click.Choice(["md", "csv"]), default="md", show_default=True)
 @click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
 @store_option
-def layout(run_refs: tuple[str, ...], layout: str, literature: bool, fmt: str, output, store) -> None:
-    """Print RUN's results in a seed paper's table layout.
+def layout(run_refs: tuple[str, ...], paper, legacy, literature: bool, fmt: str, output, store) -> None:
+    """Print RUN's results in a source paper's table layout (--paper; docs/papers.md).
 
     Several runs are merged into one table (e.g. the turboshaft WF, TRQ and TRQ-ideal
-    runs make Tables 2-3); a method may appear in only one run per target. The seed-003
-    layout adds a paired test between the two best run-time methods of each target.
+    runs make Tables 2-3); a method may appear in only one run per target. The
+    turboshaft-moe layout adds a paired test between the two best run-time methods of
+    each target.
     """
     import pandas as pd
 
@@ -32,6 +47,7 @@ def layout(run_refs: tuple[str, ...], layout: str, literature: bool, fmt: str, o
     from enginebench.results import layouts
     from enginebench.results.store import RunStore
 
+    layout = _paper(paper, legacy)
     check_output(output)
     rs = RunStore(store)
     frames, owner, datasets = [], {}, []
@@ -51,13 +67,13 @@ def layout(run_refs: tuple[str, ...], layout: str, literature: bool, fmt: str, o
         datasets.append(str(run.config().get("dataset", "")))
     metrics = pd.concat(frames, ignore_index=True)
     dataset = ", ".join(dict.fromkeys(d for d in datasets if d))
-    if layout == "seed003":
-        table = layouts.seed003_table(metrics, literature=literature)
+    if layout == "turboshaft-moe":
+        table = layouts.turboshaft_moe_table(metrics, literature=literature)
         text = (table.to_csv(index=False) if fmt == "csv"
-                else layouts.seed003_markdown(table, layouts.seed003_paired(metrics), dataset=dataset))
+                else layouts.turboshaft_moe_markdown(table, layouts.turboshaft_moe_paired(metrics), dataset=dataset))
     else:
-        table = layouts.seed000_table(metrics, literature=literature)
-        text = table.to_csv(index=False) if fmt == "csv" else layouts.seed000_markdown(table, dataset=dataset)
+        table = layouts.egt_hybrid_table(metrics, literature=literature)
+        text = table.to_csv(index=False) if fmt == "csv" else layouts.egt_hybrid_markdown(table, dataset=dataset)
     emit(text, output)
 
 
@@ -76,7 +92,7 @@ def plots(run_ref: str, out_dir: str, methods, trajectories: int, part: str, rep
     """Draw simulated vs true trajectories of RUN, with MoE gate bands, as PNG files in DIR.
 
     The run's methods are re-fitted on one repetition's training trajectories with the
-    hyperparameters the run selected (seed 003's Figs. 3-6 layout); a scatter per method
+    hyperparameters the run selected (the turboshaft-moe paper's Figs. 3-6 layout); a scatter per method
     is written as well.
     """
     from enginebench.experiments.plots_run import plot_run

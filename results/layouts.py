@@ -1,13 +1,13 @@
-"""The seeds' table layouts, built from a run's per-job metric rows, with literature rows beside them.
+"""The papers' table layouts (docs/papers.md), built from a run's per-job metric rows, with literature rows beside them.
 
-- ``seed003_table``: the turboshaft paper's Tables 2-3. Rows = method; columns = RMAE (%)
+- ``turboshaft_moe_table``: the turboshaft-moe paper's Tables 2-3. Rows = method; columns = RMAE (%)
   over trajectories on the validation and test flights: mean +- SD, median, IQR across
   trajectories (each job's ``rmae``, ``rmae_seg_sd``, ``rmae_seg_median``,
   ``rmae_seg_iqr``), averaged over repetitions; plus diverged trajectories per repetition.
-- ``seed000_table``: the diesel paper's Tables 8-9. Rows = Delta x model; MAE, MAPE, PPMCC
+- ``egt_hybrid_table``: the egt-hybrid paper's Tables 8-9. Rows = Delta x model; MAE, MAPE, PPMCC
   on the test part, mean +- half-width of the Student-t 95% interval over repetitions.
 
-Literature rows come from ``results/published/literature-seed00X.csv`` and are labelled
+Literature rows come from ``results/published/literature-<paper>.csv`` and are labelled
 ``LITERATURE``: the papers' data are confidential, so their numbers give the layout and
 the order of magnitude, never a target the synthetic datasets could be compared with.
 """
@@ -24,18 +24,21 @@ from enginebench.errors import DataError
 from enginebench.results.stats import paired_pvalues, t_interval
 
 PUBLISHED = Path(__file__).resolve().parent / "published"
+LEGACY_FILES = {"literature-seed000.csv": "literature-egt-hybrid.csv",
+                "literature-seed003.csv": "literature-turboshaft-moe.csv"}
+"""Old literature file names (papers named by seed number) -> the shipped files."""
 LITERATURE = "literature (confidential data; not comparable)"
 THIS_RUN = "this run"
-SEED003_ORDER = ("nfir", "moe", "sindy", "moe[ideal]", "sindy[ideal]", "moe-nfir", "sindy-nfir", "moe-moe")
-SEED003_METRICS = {"rmae": "mean", "rmae_seg_sd": "sd", "rmae_seg_median": "median", "rmae_seg_iqr": "iqr"}
-SEED003_SPLITS = {"validation": "val", "test": "test"}
-SEED003_COLUMNS = (
+TURBOSHAFT_MOE_ORDER = ("nfir", "moe", "sindy", "moe[ideal]", "sindy[ideal]", "moe-nfir", "sindy-nfir", "moe-moe")
+TURBOSHAFT_MOE_METRICS = {"rmae": "mean", "rmae_seg_sd": "sd", "rmae_seg_median": "median", "rmae_seg_iqr": "iqr"}
+TURBOSHAFT_MOE_SPLITS = {"validation": "val", "test": "test"}
+TURBOSHAFT_MOE_COLUMNS = (
     ["target", "method", "source"]
     + [f"{p}_{s}" for p in ("val", "test") for s in ("mean", "sd", "median", "iqr", "diverged", "trajectories")]
     + ["n_repeats", "n_failed"]
 )
-SEED000_METRICS = ("mae", "mape", "ppmcc")
-SEED000_COLUMNS = ["target", "window", "method", "source"] + [c for m in SEED000_METRICS for c in (m, f"{m}_ci")] + ["n_repeats"]
+EGT_HYBRID_METRICS = ("mae", "mape", "ppmcc")
+EGT_HYBRID_COLUMNS = ["target", "window", "method", "source"] + [c for m in EGT_HYBRID_METRICS for c in (m, f"{m}_ci")] + ["n_repeats"]
 
 
 def is_ideal(method: str) -> bool:
@@ -45,7 +48,7 @@ def is_ideal(method: str) -> bool:
 
 def read_literature(name: str) -> pd.DataFrame:
     """A literature table shipped in ``results/published`` (``#`` lines are comments)."""
-    path = PUBLISHED / name
+    path = PUBLISHED / LEGACY_FILES.get(name, name)
     if not path.is_file():
         raise DataError(f"literature table {path} is missing from the installation; reinstall enginebench")
     return pd.read_csv(path, comment="#")
@@ -61,7 +64,7 @@ def _ok_rows(metrics: pd.DataFrame, wanted: Sequence[str], splits: Sequence[str]
     if ok.empty:
         raise DataError(
             f"{layout}: the run has no {'/'.join(wanted[:1])} rows on the {' or '.join(splits)} part; "
-            "this layout needs a finished run with those parts (a split with a validation part for seed 003)"
+            "this layout needs a finished run with those parts (a split with a validation part for turboshaft-moe)"
         )
     for key in single:
         if key in ok.columns and ok.groupby(["target", "method"])[key].nunique().max() > 1:
@@ -79,9 +82,9 @@ def _method_order(methods: Sequence[str], order: Sequence[str]) -> list[str]:
     return known + sorted(m for m in set(methods) if m not in order)
 
 
-# -- seed 003 ------------------------------------------------------------------------------------
-def seed003_table(metrics: pd.DataFrame, literature: bool = True) -> pd.DataFrame:
-    """Seed 003's Tables 2-3 from a run's metric rows (concatenate several runs' rows to merge them).
+# -- turboshaft-moe (formerly seed 003) ----------------------------------------------------------
+def turboshaft_moe_table(metrics: pd.DataFrame, literature: bool = True) -> pd.DataFrame:
+    """turboshaft-moe's Tables 2-3 from a run's metric rows (concatenate several runs' rows to merge them).
 
     One row per (target, method): ``val_mean``/``test_mean`` (RMAE %, averaged over
     trajectories), ``_sd``, ``_median``, ``_iqr`` across trajectories, each averaged over
@@ -89,19 +92,20 @@ def seed003_table(metrics: pd.DataFrame, literature: bool = True) -> pd.DataFram
     ``n_repeats`` and ``n_failed``. Literature rows follow each target's block with
     ``source`` = LITERATURE.
     """
-    ok = _ok_rows(metrics, list(SEED003_METRICS) + ["diverged", "n_segments"], list(SEED003_SPLITS), "seed-003 layout")
+    ok = _ok_rows(metrics, list(TURBOSHAFT_MOE_METRICS) + ["diverged", "n_segments"], list(TURBOSHAFT_MOE_SPLITS),
+                  "turboshaft-moe layout")
     means = ok.groupby(["target", "method", "split", "metric"], sort=False)["value"].mean()
     reps = ok[ok["metric"] == "rmae"].groupby(["target", "method"])["repetition"].nunique()
     failed = _failed(metrics, ["target", "method"])
     rows = []
     targets = list(dict.fromkeys(ok["target"]))
-    lit = read_literature("literature-seed003.csv") if literature else None
+    lit = read_literature("literature-turboshaft-moe.csv") if literature else None
     for target in targets:
         methods = ok.loc[ok["target"] == target, "method"].unique()
-        for method in _method_order(methods, SEED003_ORDER):
+        for method in _method_order(methods, TURBOSHAFT_MOE_ORDER):
             row = {"target": target, "method": method, "source": THIS_RUN}
-            for split, prefix in SEED003_SPLITS.items():
-                for metric, suffix in {**SEED003_METRICS, "diverged": "diverged", "n_segments": "trajectories"}.items():
+            for split, prefix in TURBOSHAFT_MOE_SPLITS.items():
+                for metric, suffix in {**TURBOSHAFT_MOE_METRICS, "diverged": "diverged", "n_segments": "trajectories"}.items():
                     row[f"{prefix}_{suffix}"] = float(means.get((target, method, split, metric), np.nan))
             row["n_repeats"] = int(reps.get((target, method), 0))
             row["n_failed"] = int(failed.get((target, method), 0))
@@ -114,17 +118,17 @@ def seed003_table(metrics: pd.DataFrame, literature: bool = True) -> pd.DataFram
                         row[f"{prefix}_{suffix}"] = float(getattr(r, f"{prefix}_{suffix}"))
                     row[f"{prefix}_diverged"] = row[f"{prefix}_trajectories"] = np.nan
                 rows.append(row)
-    return pd.DataFrame(rows, columns=SEED003_COLUMNS)
+    return pd.DataFrame(rows, columns=TURBOSHAFT_MOE_COLUMNS)
 
 
-def seed003_paired(metrics: pd.DataFrame, split: str = "test", metric: str = "rmae") -> pd.DataFrame:
+def turboshaft_moe_paired(metrics: pd.DataFrame, split: str = "test", metric: str = "rmae") -> pd.DataFrame:
     """Paired tests between the two best methods of each target (lowest mean ``metric`` on ``split``).
 
-    Ideal rows are left out (they are not available at run time), as in the seed, whose
+    Ideal rows are left out (they are not available at run time), as in the paper, whose
     test compares the two best run-time cascades. Pairs are repetitions with the same
     index (same seed, same training trajectories); fewer than 2 pairs gives no test.
     """
-    ok = _ok_rows(metrics, [metric], [split], "seed-003 paired test")
+    ok = _ok_rows(metrics, [metric], [split], "turboshaft-moe paired test")
     ok = ok[~ok["method"].map(is_ideal)]
     rows = []
     for target, block in ok.groupby("target", sort=False):
@@ -157,10 +161,10 @@ def _best_mask(values: pd.Series, eligible: pd.Series) -> pd.Series:
     return mask
 
 
-def seed003_markdown(table: pd.DataFrame, paired: pd.DataFrame | None = None, dataset: str = "") -> str:
-    """Markdown of ``seed003_table``: one table per target, best run-time value per column in bold."""
+def turboshaft_moe_markdown(table: pd.DataFrame, paired: pd.DataFrame | None = None, dataset: str = "") -> str:
+    """Markdown of ``turboshaft_moe_table``: one table per target, best run-time value per column in bold."""
     if table.empty:
-        raise DataError("seed-003 layout: the table is empty")
+        raise DataError("turboshaft-moe layout: the table is empty")
     head = ["method", "source", "val mean ± SD", "val median", "val IQR", "test mean ± SD", "test median", "test IQR",
             "diverged (val / test)", "n"]
     out = []
@@ -192,8 +196,8 @@ def seed003_markdown(table: pd.DataFrame, paired: pd.DataFrame | None = None, da
         "RMAE: each trajectory's MAE divided by mean |y| over the training data, in %; mean ± SD, median and IQR across "
         "the trajectories of the validation / test flights, averaged over n repetitions; diverged: trajectories per "
         "repetition that left the model's envelope. Rows marked [ideal] (italics) are fed the measured intermediate "
-        "(WF), which is NOT available at run time, and are not bold. Literature rows: seed 003 Tables 2-3 on "
-        "confidential flight data, NOT comparable with this synthetic dataset."
+        "(WF), which is NOT available at run time, and are not bold. Literature rows: turboshaft-moe paper, Tables 2-3, "
+        "on confidential flight data, NOT comparable with this synthetic dataset."
     )
     if paired is not None and not paired.empty:
         out.append("")
@@ -207,18 +211,18 @@ def seed003_markdown(table: pd.DataFrame, paired: pd.DataFrame | None = None, da
     return "\n".join(out) + "\n"
 
 
-# -- seed 000 ------------------------------------------------------------------------------------
-def seed000_table(metrics: pd.DataFrame, literature: bool = True, split: str = "test") -> pd.DataFrame:
-    """Seed 000's Tables 8-9: rows target x Delta x model; MAE, MAPE, PPMCC mean and 95% t half-width.
+# -- egt-hybrid (formerly seed 000) --------------------------------------------------------------
+def egt_hybrid_table(metrics: pd.DataFrame, literature: bool = True, split: str = "test") -> pd.DataFrame:
+    """egt-hybrid's Tables 8-9: rows target x Delta x model; MAE, MAPE, PPMCC mean and 95% t half-width.
 
     ``<metric>_ci`` is the half-width of the Student-t 95% interval over repetitions (nan
     with one repetition). Literature rows (``source`` = LITERATURE) follow each target.
     """
-    ok = _ok_rows(metrics, list(SEED000_METRICS), [split], "seed-000 layout", single=("mode",))
+    ok = _ok_rows(metrics, list(EGT_HYBRID_METRICS), [split], "egt-hybrid layout", single=("mode",))
     if "window" not in ok.columns:
         ok = ok.assign(window=0.0)
     rows = []
-    lit = read_literature("literature-seed000.csv") if literature else None
+    lit = read_literature("literature-egt-hybrid.csv") if literature else None
     for target in dict.fromkeys(ok["target"]):
         block = ok[ok["target"] == target]
         for window in sorted(block["window"].unique()):
@@ -227,7 +231,7 @@ def seed000_table(metrics: pd.DataFrame, literature: bool = True, split: str = "
                 mrows = wblock[wblock["method"] == method]
                 row = {"target": target, "window": float(window), "method": method, "source": THIS_RUN,
                        "n_repeats": int(mrows["repetition"].nunique())}
-                for m in SEED000_METRICS:
+                for m in EGT_HYBRID_METRICS:
                     v = mrows.loc[mrows["metric"] == m, "value"].dropna().to_numpy(dtype=float)
                     if v.size:
                         mean, low, high = t_interval(v)
@@ -238,14 +242,14 @@ def seed000_table(metrics: pd.DataFrame, literature: bool = True, split: str = "
         if lit is not None:
             for r in lit[lit["target"] == target].itertuples(index=False):
                 rows.append({"target": target, "window": float(r.window), "method": r.method, "source": LITERATURE,
-                             "n_repeats": 30, **{c: float(getattr(r, c)) for m in SEED000_METRICS for c in (m, f"{m}_ci")}})
-    return pd.DataFrame(rows, columns=SEED000_COLUMNS)
+                             "n_repeats": 30, **{c: float(getattr(r, c)) for m in EGT_HYBRID_METRICS for c in (m, f"{m}_ci")}})
+    return pd.DataFrame(rows, columns=EGT_HYBRID_COLUMNS)
 
 
-def seed000_markdown(table: pd.DataFrame, dataset: str = "") -> str:
-    """Markdown of ``seed000_table``: one table per target, rows Delta x model, cells mean ± CI."""
+def egt_hybrid_markdown(table: pd.DataFrame, dataset: str = "") -> str:
+    """Markdown of ``egt_hybrid_table``: one table per target, rows Delta x model, cells mean ± CI."""
     if table.empty:
-        raise DataError("seed-000 layout: the table is empty")
+        raise DataError("egt-hybrid layout: the table is empty")
     head = ["Δ s", "model", "source", "MAE", "MAPE %", "PPMCC", "n"]
     out = []
     for target, block in table.groupby("target", sort=False):
@@ -254,9 +258,14 @@ def seed000_markdown(table: pd.DataFrame, dataset: str = "") -> str:
         out.append("|" + "---|" * len(head))
         for r in block.sort_values(["window", "source"], kind="stable").itertuples(index=False):
             cells = [f"{getattr(r, m):.3g} ± {getattr(r, m + '_ci'):.2g}" if np.isfinite(getattr(r, m + "_ci"))
-                     else (f"{getattr(r, m):.3g}" if np.isfinite(getattr(r, m)) else "n/a") for m in SEED000_METRICS]
+                     else (f"{getattr(r, m):.3g}" if np.isfinite(getattr(r, m)) else "n/a") for m in EGT_HYBRID_METRICS]
             out.append("| " + " | ".join([f"{r.window:g}", r.method, r.source, *cells, str(r.n_repeats)]) + " |")
         out.append("")
-    out.append("mean ± half-width of the Student-t 95% interval over n repetitions, test part. Literature rows: seed 000 "
-               "Tables 8-9 on confidential vessel data, NOT comparable with the synthetic dataset.")
+    out.append("mean ± half-width of the Student-t 95% interval over n repetitions, test part. Literature rows: egt-hybrid "
+               "paper, Tables 8-9, on confidential vessel data, NOT comparable with the synthetic dataset.")
     return "\n".join(out) + "\n"
+
+
+# the old names (papers called by their seed numbers), kept for existing callers
+seed003_table, seed003_paired, seed003_markdown = turboshaft_moe_table, turboshaft_moe_paired, turboshaft_moe_markdown
+seed000_table, seed000_markdown = egt_hybrid_table, egt_hybrid_markdown

@@ -40,8 +40,22 @@ def table_rows(output: str) -> dict[tuple[str, float], list[str]]:
 @pytest.fixture(scope="module")
 def seed_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("cal") / "params.json"
-    result = CliRunner().invoke(app, ["calibrate", "pm", "--fat", "seed", "-o", str(out)])
+    result = CliRunner().invoke(app, ["calibrate", "pm", "--fat", "seed", "-o", str(out)])  # the deprecated name
     return result, json.loads(out.read_text())
+
+
+def test_the_papers_stable_name_gives_the_same_fit_and_the_old_name_one_note(seed_run, tmp_path):
+    result, doc = seed_run
+    out = tmp_path / "params.json"
+    new = CliRunner().invoke(app, ["calibrate", "pm", "--fat", "egt-hybrid", "-o", str(out)])
+    assert new.exit_code == 0, new.output
+    assert json.loads(out.read_text()) == doc
+    note = "note: --fat seed is deprecated (a seed is a random seed); use --fat egt-hybrid"
+    assert [line for line in result.output.splitlines() if line.startswith("note:")] == [note]
+    assert "deprecated" not in new.output and table_rows(new.output) == table_rows(result.output)
+    assert new.stdout == result.stdout  # the note goes to standard error
+    default = CliRunner().invoke(app, ["calibrate", "pm"])
+    assert default.exit_code == 0 and default.stdout == new.stdout
 
 
 def test_seed_fixture_calibration_meets_10_percent_and_prints_the_papers_values(seed_run):
@@ -60,7 +74,7 @@ def test_seed_fixture_calibration_meets_10_percent_and_prints_the_papers_values(
             assert float(paper_pm) == pytest.approx(fat[f"{q}_pm_paper"].iloc[i], rel=1e-4)
             assert float(paper_pe) == pytest.approx(fat[f"{q}_pe_paper_pct"].iloc[i], abs=0.006)
     # the paper's worst error in Table 4 is the turbine-outlet temperature at 631 rpm, 9.916 %
-    assert "worst |PE| (paper, seed 000 Table 4): 9.92 % (t_turbine_outlet_degc at 631 rpm)" in result.output
+    assert "worst |PE| (paper, egt-hybrid Table 4): 9.92 % (t_turbine_outlet_degc at 631 rpm)" in result.output
     assert "criterion |PE| <= 10 %: met" in result.output
 
 
@@ -73,7 +87,7 @@ def test_parameter_file_reproduces_the_printed_worst_error(seed_run):
     assert worst == pytest.approx(doc["max_abs_pe_pct"], abs=1e-9)
     assert worst <= 10.0
     assert f"worst |PE| (ours): {worst:.2f} %" in result.output
-    assert doc["fat"].startswith("seed 000 Table 4") and doc["pressure"] == "absolute"
+    assert doc["fat"].startswith("egt-hybrid Table 4") and doc["pressure"] == "absolute"
 
 
 def test_exit_code_1_when_an_error_exceeds_the_tolerance(seed_run):
@@ -95,8 +109,8 @@ def test_simulator_fat_has_no_paper_columns_and_fits_closely():
     assert "worst |PE| (paper" not in result.output
 
 
-def test_default_is_the_seed_fixture():
-    assert "default: seed" in CliRunner().invoke(app, ["calibrate", "pm", "--help"]).output
+def test_default_is_the_papers_fixture():
+    assert "default: egt-hybrid" in " ".join(CliRunner().invoke(app, ["calibrate", "pm", "--help"]).output.split())
     assert "1 when any |PE| exceeds it" in " ".join(CliRunner().invoke(app, ["calibrate", "pm", "--help"]).output.split())
 
 

@@ -1,4 +1,4 @@
-"""Seed table layouts: seed 003's Tables 2-3 and seed 000's Tables 8-9, from per-job metric rows."""
+"""Paper table layouts: turboshaft-moe's Tables 2-3 and egt-hybrid's Tables 8-9 (formerly seed 003 / seed 000)."""
 
 from __future__ import annotations
 
@@ -100,7 +100,7 @@ def test_seed003_markdown_labels_literature_and_ideal_and_bolds_the_best_run_tim
 def test_seed003_needs_validation_or_test_rows():
     rows = job_rows({"nfir": 1.0})
     rows = rows[~rows["split"].isin(["validation", "test"])]
-    with pytest.raises(DataError, match="seed-003 layout: the run has no rmae rows on the validation or test part"):
+    with pytest.raises(DataError, match="turboshaft-moe layout: the run has no rmae rows on the validation or test part"):
         seed003_table(rows)
 
 
@@ -165,3 +165,47 @@ def test_layout_command_merges_runs_and_refuses_overlaps(tmp_path, trq):
     twin.write_job("all", trq, {"status": "ok"})
     res = CliRunner().invoke(group, ["layout", refs[0], twin.id, "--store", str(tmp_path)])
     assert isinstance(res.exception, DataError) and "both hold method 'nfir' for target 'TRQ'" in str(res.exception)
+
+
+def test_the_papers_stable_names_and_the_old_seed_names_are_the_same_layouts(tmp_path, trq):
+    import click
+
+    from enginebench.cli.layout import layout
+    from enginebench.results import layouts
+    from enginebench.results.store import RunStore
+
+    assert layouts.seed003_table is layouts.turboshaft_moe_table and layouts.seed000_table is layouts.egt_hybrid_table
+    assert read_literature("literature-turboshaft-moe.csv").equals(read_literature("literature-seed003.csv"))
+    run = RunStore(tmp_path).create("trq", {"dataset": "turboshaft"}, "abc123", {}, 1)
+    run.write_job("all", trq, {"status": "ok"})
+    group = click.Group(commands={"layout": layout})
+
+    def invoke(*flags):
+        return CliRunner().invoke(group, ["layout", run.id, *flags, "--store", str(tmp_path)])
+
+    new, old, default = invoke("--paper", "turboshaft-moe"), invoke("--seed003"), invoke()
+    assert new.exit_code == old.exit_code == default.exit_code == 0, old.output
+    assert new.stdout == old.stdout == default.stdout and "### TRQ: RMAE (%)" in new.stdout
+    assert old.stderr == "note: --seed003 is deprecated (a seed is a random seed); use --paper turboshaft-moe\n"
+    assert new.stderr == default.stderr == ""
+    assert "turboshaft-moe paper, Tables 2-3" in new.stdout
+    clash = invoke("--paper", "egt-hybrid", "--seed003")
+    assert clash.exit_code == 2 and "--paper egt-hybrid and --seed003 ask for different layouts" in clash.output
+    help_text = CliRunner().invoke(group, ["layout", "--help"]).output
+    assert "--paper [turboshaft-moe|egt-hybrid]" in help_text and "--seed003" not in help_text  # hidden alias
+
+
+def test_egt_hybrid_layout_by_its_new_and_old_flags(tmp_path):
+    import click
+
+    from enginebench.cli.layout import layout
+    from enginebench.results.store import RunStore
+
+    run = RunStore(tmp_path).create("egt", {"dataset": "marine-diesel"}, "abc123", {}, 1)
+    run.write_job("all", marine_rows().assign(dataset="marine-diesel", family="x"), {"status": "ok"})
+    group = click.Group(commands={"layout": layout})
+    new = CliRunner().invoke(group, ["layout", run.id, "--paper", "egt-hybrid", "--store", str(tmp_path)])
+    old = CliRunner().invoke(group, ["layout", run.id, "--seed000", "--store", str(tmp_path)])
+    assert new.exit_code == old.exit_code == 0, old.output
+    assert new.stdout == old.stdout and "| 0 | pm | literature (confidential data; not comparable) | 33 ± 1.7" in new.stdout
+    assert old.stderr == "note: --seed000 is deprecated (a seed is a random seed); use --paper egt-hybrid\n"
