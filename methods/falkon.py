@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from enginebench.errors import MethodError
+from enginebench.methods.numerics.device import resolve_device
 
 DEFAULT_BLOCK_MIB = 4.0
 """Memory budget of one streamed kernel block, in MiB (block_rows = budget / (m * itemsize))."""
@@ -54,23 +55,6 @@ JITTER_TRIES = 8
 """Cholesky retries, each with ten times the jitter, before giving up."""
 
 _WHO = "FALKON solver"
-
-
-def resolve_device(device: str) -> torch.device:
-    """``"auto"`` -> CUDA when available, else CPU; other names are checked to exist."""
-    if not isinstance(device, str):
-        raise MethodError(f"{_WHO}: device must be a string ('auto', 'cpu', 'cuda', 'cuda:0'), got {device!r}")
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, ValueError):
-        raise MethodError(f"{_WHO}: unknown device {device!r}; use 'auto', 'cpu' or 'cuda[:index]'") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise MethodError(f"{_WHO}: device {device!r} requested but CUDA is not available; use device='auto' or 'cpu'")
-    if dev.type not in ("cpu", "cuda"):
-        raise MethodError(f"{_WHO}: device {device!r} is not supported; use 'auto', 'cpu' or 'cuda[:index]'")
-    return dev
 
 
 def _positive(value: Any, name: str) -> float:
@@ -383,7 +367,7 @@ class FalkonSolver:
         self.maxiter = _count(maxiter, "maxiter")
         self.tol = _non_negative(tol, "tol", "a finite number >= 0 (0 = run all maxiter iterations)")
         self.block_rows = None if block_rows is None else _count(block_rows, "block_rows")
-        self.device = resolve_device(device)
+        self.device = resolve_device(device, _WHO)
         self.dtype = _check_dtype(dtype)
         self.block_mib = _positive(block_mib, "block_mib")
         self.cache_mib = _non_negative(cache_mib, "cache_mib", "a finite number >= 0 (0 = always stream)")
@@ -482,7 +466,7 @@ def falkon_path(
         _positive(lam, "lambdas")
     gamma = _positive(gamma, "gamma")
     centres, maxiter = _count(centres, "centres"), _count(maxiter, "maxiter")
-    dev, dtype = resolve_device(device), _check_dtype(dtype)
+    dev, dtype = resolve_device(device, _WHO), _check_dtype(dtype)
     X = _features(X, "training features X")
     X_eval = _features(X_eval, "features to predict X_eval")
     if X_eval.shape[1] != X.shape[1]:

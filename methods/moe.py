@@ -36,7 +36,7 @@ from scipy.signal import lfilter, savgol_filter
 from enginebench.datasets.samples import Samples
 from enginebench.errors import DataError, MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
-from enginebench.methods.derivatives import tv_derivative
+from enginebench.methods.numerics.derivatives import tv_derivative
 from enginebench.methods.moe_model import MixtureOfExperts, moe_loss
 
 HYPERPARAMETERS: dict[str, Any] = {

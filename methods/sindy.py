@@ -48,11 +48,12 @@ from typing import Any, Sequence
 import numpy as np
 import pysindy as ps
 from sklearn.linear_model import ridge_regression
-from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
+from enginebench.methods.numerics.derivatives import differentiate as regularised_derivative
+from enginebench.methods.numerics.integrate import integrate
 
 DERIVATIVE_KINDS = ("trend_filtered", "kalman")
 """Regularised differentiators of the ``derivative`` package that this method offers.
@@ -165,7 +166,7 @@ def simulate_batch(
     (N_s,) the inputs and sample times of segment s. Inputs are held constant over
     each sample interval (zero-order hold); each interval is integrated with
     ``substeps`` fixed steps of RK4 or explicit Euler. All segments still running are
-    advanced together in one vectorised step; segments are stored flat (no padding).
+    advanced together in one vectorised step (the shared ``numerics.integrate``).
 
     A segment whose state turns non-finite or leaves [lower, upper] is stopped: its
     state is held at the last in-envelope value for the rest of its rows and it is
@@ -178,50 +179,22 @@ def simulate_batch(
     lengths = np.array([len(t) for t in times], dtype=np.int64)
     if len(controls) != n_seg or lengths.size != n_seg:
         raise MethodError("sindy: simulate_batch needs one control array and one time array per initial state")
-    m = controls[0].shape[1] if n_seg and controls[0].ndim == 2 else 0
-    offsets = np.r_[0, np.cumsum(lengths)]
-    out = np.empty((offsets[-1], k))
-    diverged = np.zeros(n_seg, dtype=bool)
     if n_seg == 0:
-        return [], diverged
-    u_flat = np.concatenate([np.asarray(c, dtype=np.float64).reshape(len(c), m) for c in controls])
-    t_flat = np.concatenate([np.asarray(t, dtype=np.float64) for t in times])
-
-    order = np.argsort(-lengths, kind="stable")  # longest first: live segments are a prefix
-    sorted_len = lengths[order]
-    sorted_off = offsets[:-1][order]
-    state = x0[order].copy()
-    alive = np.ones(n_seg, dtype=bool)  # not diverged (in sorted order)
-    out[sorted_off[sorted_len > 0]] = state[sorted_len > 0]
+        return [], np.zeros(0, dtype=bool)
+    m = controls[0].shape[1] if controls[0].ndim == 2 else 0
+    L = int(lengths.max())
+    U = np.zeros((n_seg, L, m))
+    H = np.zeros((n_seg, max(L - 1, 0)))
+    for j, (c, t) in enumerate(zip(controls, times)):
+        U[j, : lengths[j]] = np.asarray(c, dtype=np.float64).reshape(lengths[j], m)
+        H[j, : lengths[j] - 1] = np.diff(np.asarray(t, dtype=np.float64))
 
     def rhs(x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return model_rhs(coef, powers, x, u if m else None)
 
-    with np.errstate(all="ignore"):
-        for i in range(int(lengths.max()) - 1):
-            n_live = int(np.searchsorted(-sorted_len, -(i + 2), side="right"))  # segments with row i+1
-            step = np.flatnonzero(alive[:n_live])
-            if step.size:
-                rows = sorted_off[step] + i
-                x = state[step]
-                u = u_flat[rows]
-                h = ((t_flat[rows + 1] - t_flat[rows]) / substeps)[:, None]
-                for _ in range(substeps):
-                    if integrator == "euler":
-                        x = x + h * rhs(x, u)
-                    else:
-                        k1 = rhs(x, u)
-                        k2 = rhs(x + 0.5 * h * k1, u)
-                        k3 = rhs(x + 0.5 * h * k2, u)
-                        k4 = rhs(x + h * k3, u)
-                        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-                bad = ~np.isfinite(x).all(axis=1) | (x < lower).any(axis=1) | (x > upper).any(axis=1)
-                good = step[~bad]
-                state[good] = x[~bad]
-                alive[step[bad]] = False
-            out[sorted_off[:n_live] + i + 1] = state[:n_live]
-    diverged[order] = ~alive
-    return [out[a:b] for a, b in zip(offsets[:-1], offsets[1:])], diverged
+    traj, diverged = integrate(rhs, x0, U, H, lengths, lower, upper, method=integrator, inputs="hold",
+                               substeps=int(substeps))
+    return [traj[j, :n] for j, n in enumerate(lengths)], diverged
 
 
 def differentiate(
@@ -236,38 +209,25 @@ def differentiate(
 ) -> np.ndarray:
     """Regularised time derivative of uniformly sampled signals ``x`` (n, k).
 
-    Uses pysindy's ``SINDyDerivative`` wrapper of the ``derivative`` package:
-    ``trend_filtered`` (order 0: total-variation regularisation) or ``kalman``. Both
-    work with dense n x n matrices, so long signals are cut into overlapping chunks of
-    ``chunk`` rows; each chunk contributes its interior (``margin`` rows are dropped
-    at each inner edge). The regularisation acts in sample-index time, which makes
-    ``alpha`` independent of the sample period and keeps the LASSO well scaled.
+    The shared differentiator (``numerics.derivatives.differentiate``): ``trend_filtered``
+    (order 0: total-variation regularisation; sklearn's default Lasso tolerance) or
+    ``kalman``. Both work with dense n x n matrices, so long signals are cut into
+    overlapping chunks of ``chunk`` rows; each chunk contributes its interior (``margin``
+    rows are dropped at each inner edge). The regularisation acts in sample-index time,
+    which makes ``alpha`` independent of the sample period and keeps the LASSO well
+    scaled. Lasso ConvergenceWarnings are let through (``_prepare`` counts them).
     """
     if kind not in DERIVATIVE_KINDS:
         raise MethodError(f"sindy: unknown derivative {kind!r}; use one of {', '.join(DERIVATIVE_KINDS)}")
-    x = np.asarray(x, dtype=np.float64)
-    n = x.shape[0]
-    if kind == "trend_filtered":
-        diff = ps.SINDyDerivative(kind="trend_filtered", order=0, alpha=alpha, max_iter=max_iter, save_smooth=False)
-    else:
-        diff = ps.SINDyDerivative(kind="kalman", alpha=alpha, save_smooth=False)
     if chunk < 2 * margin + 8:
         raise MethodError(f"sindy: derivative_chunk ({chunk}) must exceed 2 x derivative_margin + 8 ({2 * margin + 8})")
-    if n <= chunk:
-        starts, chunk = [0], n
-    else:
-        starts = list(range(0, n - chunk, chunk - 2 * margin)) + [n - chunk]
-    out = np.empty_like(x)
-    done = 0
-    t_chunk = np.arange(chunk, dtype=np.float64)
-    with threadpool_limits(limits=1, user_api="blas"):  # small dense solves: threads only contend
-        for a in starts:
-            b = a + chunk
-            keep_to = n if b == n else b - margin
-            d = np.asarray(diff(x[a:b], t=t_chunk))
-            out[done:keep_to] = d[done - a:keep_to - a]
-            done = keep_to
-    return out / dt
+    x = np.asarray(x, dtype=np.float64)
+    index = np.arange(x.shape[0], dtype=np.float64)
+    _, d = regularised_derivative(
+        x, index, alpha, kind=kind, window=chunk, margin=margin, first_keep=chunk - margin, tol=1e-4,
+        max_iter=max_iter, precompute=False, quiet=False,
+    )
+    return d / dt
 
 
 def raw_coefficients(fit: SINDyFit) -> np.ndarray:

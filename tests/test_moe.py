@@ -25,7 +25,7 @@ from enginebench.datasets.dataset import Dataset
 from enginebench.datasets.samples import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError, MethodError
-from enginebench.methods.derivatives import tv_derivative, tv_differentiate, window_bounds
+from enginebench.methods.numerics.derivatives import tv_derivative, tv_differentiate, window_bounds
 from enginebench.methods.moe import MoE, frozen_stability, gate_weights, local_coefficients, simulate
 from enginebench.methods.moe_model import moe_loss, signed_softplus
 

@@ -1,22 +1,25 @@
-"""Total-variation regularised differentiation of sampled signals (for MoE and SINDy targets).
+"""Regularised differentiation of sampled signals: the one differentiator of MoE and SINDy targets.
 
 Models fitted on time derivatives (seed 003: MoE and SINDy) need dz/dt from noisy,
 sampled trajectories; a plain finite difference amplifies the noise by 1/dt. This
-module wraps the maintained ``derivative`` package's trend-filtered estimator
+module wraps the maintained ``derivative`` package's estimators: ``trend_filtered``
 (``derivative.TrendFiltered``; ``order=0`` is Chartrand's total-variation derivative,
-``order=1`` penalises the variation of the second derivative) and makes it usable on
-long segments: the package solves a dense LASSO whose cost grows like the cube of the
-length, so a long signal is cut into overlapping windows whose central parts are
-stitched back together.
+``order=1`` penalises the variation of the second derivative) and ``kalman`` (the RTS
+smoother, quadratic regularisation), and makes them usable on long segments: the
+package solves dense problems whose cost grows like the cube of the length, so a long
+signal is cut into overlapping windows whose central parts are stitched back together.
+The LASSO settings (``tol``, ``max_iter``, ``precompute``) and the window layout are
+arguments, so each caller keeps its own numbers (MoE: 128-sample windows, tol 1e-3;
+SINDy: 256-sample chunks with sklearn's default tol, see ``methods/sindy.py``).
 """
 
 from __future__ import annotations
 
 import warnings
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
-from derivative import TrendFiltered
+from derivative import Kalman, TrendFiltered
 from sklearn.exceptions import ConvergenceWarning
 from threadpoolctl import threadpool_limits
 
@@ -28,23 +31,39 @@ DEFAULT_MARGIN = 16
 """Samples discarded at each inner window edge, where the estimate is least accurate."""
 
 
-def window_bounds(n: int, window: int = DEFAULT_WINDOW, margin: int = DEFAULT_MARGIN) -> list[tuple[int, int, int, int]]:
+KINDS = ("trend_filtered", "kalman")
+"""Estimators of the ``derivative`` package offered here."""
+
+
+def window_bounds(
+    n: int, window: int = DEFAULT_WINDOW, margin: int = DEFAULT_MARGIN, first_keep: int | None = None
+) -> list[tuple[int, int, int, int]]:
     """Cut ``n`` samples into overlapping windows.
 
     Returns ``(lo, hi, a, b)`` tuples: solve on ``[lo, hi)``, keep ``[a, b)``. The kept
     ranges tile ``[0, n)`` exactly; every window is ``window`` long unless ``n`` is shorter.
+    Every kept range after the first is ``window - 2 margin`` long and has ``margin``
+    solved samples on each side; the first keeps ``[0, first_keep)`` (default ``window -
+    2 margin``; ``window - margin`` also keeps the first window's leading rows, which
+    have no inner edge).
     """
     if window < 4 or not 0 <= margin < window // 2:
         raise DataError(
             f"derivative windows: window={window} must be >= 4 and margin={margin} in [0, window/2); "
             "use e.g. window=128, margin=16"
         )
+    core = window - 2 * margin
+    first = core if first_keep is None else int(first_keep)
+    if not core <= first <= window - margin:
+        raise DataError(
+            f"derivative windows: first_keep={first_keep} must be in [window - 2 margin, window - margin] = "
+            f"[{core}, {window - margin}]"
+        )
     if n <= window:
         return [(0, n, 0, n)]
-    core = window - 2 * margin
     out = []
-    for a in range(0, n, core):
-        b = min(n, a + core)
+    for a in [0, *range(first, n, core)]:
+        b = min(n, first if a == 0 else a + core)
         lo = max(0, a - margin)
         hi = min(n, lo + window)
         lo = max(0, hi - window)
@@ -72,28 +91,40 @@ def _check_time(t: np.ndarray, where: str) -> float:
     return h
 
 
-def tv_differentiate(
+def differentiate(
     y: np.ndarray,
     t: np.ndarray,
     alpha: float,
     *,
+    kind: str = "trend_filtered",
     order: int = 0,
     window: int = DEFAULT_WINDOW,
     margin: int = DEFAULT_MARGIN,
+    first_keep: int | None = None,
     tol: float = 1e-3,
     max_iter: int = 10_000,
+    precompute: bool = True,
     blas_threads: int | None = 1,
+    quiet: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Smoothed signal and derivative of ``y`` ((N,) or (N, c)) sampled at uniform times ``t``.
 
-    Each column and window solves ``min 1/2 |A u - (y - y_0)|^2 + alpha |D^(order+1) u|_1``
-    (``A`` integrates, ``D`` differentiates) with ``derivative.TrendFiltered``. ``alpha``
-    is in the units of ``y``: scale it with the signal. Returns ``(y_smooth, dy_dt)``,
-    both shaped like ``y``. ``blas_threads`` caps BLAS threads meanwhile (None: leave as
-    is): the windows are small, and on busy shared cores threaded BLAS only waits.
+    ``kind="trend_filtered"``: each column and window solves ``min 1/2 |A u - (y - y_0)|^2 +
+    alpha |D^(order+1) u|_1`` (``A`` integrates, ``D`` differentiates) with
+    ``derivative.TrendFiltered`` (sklearn's Lasso with ``tol``, ``max_iter``,
+    ``precompute``). ``kind="kalman"``: ``derivative.Kalman(alpha)`` (``order`` and the
+    Lasso settings unused). ``alpha`` is in the units of ``y``: scale it with the signal;
+    pass time in samples to make it independent of the sample period. Windows follow
+    :func:`window_bounds`. Returns ``(y_smooth, dy_dt)``, both shaped like ``y``.
+    ``blas_threads`` caps BLAS threads meanwhile (None: leave as is): the windows are
+    small, and on busy shared cores threaded BLAS only waits. ``quiet`` silences the
+    Lasso's ConvergenceWarning (a LASSO stopped at max_iter still gives a usable
+    estimate); ``quiet=False`` lets callers count them.
     """
     y = np.asarray(y, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
+    if kind not in KINDS:
+        raise DataError(f"derivative: unknown kind {kind!r}; use one of {', '.join(KINDS)}")
     if not alpha > 0:
         raise DataError(f"tv derivative: alpha must be > 0, got {alpha}")
     if order not in (0, 1):
@@ -107,36 +138,57 @@ def tv_differentiate(
     _check_time(t, "tv derivative")
     smooth = np.empty_like(Y)
     deriv = np.empty_like(Y)
-    estimator = TrendFiltered(order=order, alpha=alpha, tol=tol, max_iter=max_iter, precompute=True)
+    if kind == "kalman":
+        estimator = Kalman(alpha=alpha)
+    else:
+        estimator = TrendFiltered(order=order, alpha=alpha, tol=tol, max_iter=max_iter, precompute=precompute)
     # the package memoises its last solve keyed on the estimator's id, which a later
     # estimator with another alpha may reuse: start and end with an empty cache
-    TrendFiltered._global.cache_clear()
+    type(estimator)._global.cache_clear()
     with warnings.catch_warnings(), threadpool_limits(blas_threads, user_api="blas"):
-        # a LASSO stopped at max_iter still gives a usable estimate; do not flood the log
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        for lo, hi, a, b in window_bounds(len(t), window, margin):
+        if quiet:
+            warnings.simplefilter("ignore", ConvergenceWarning)
+        for lo, hi, a, b in window_bounds(len(t), window, margin, first_keep):
             tw = t[lo:hi] - t[lo]
             for c in range(Y.shape[1]):
-                xs, xd = estimator.x(Y[lo:hi, c], tw), estimator.d(Y[lo:hi, c], tw)
-                smooth[a:b, c] = xs[a - lo : b - lo]
+                xd = estimator.d(Y[lo:hi, c], tw)
                 deriv[a:b, c] = xd[a - lo : b - lo]
-    TrendFiltered._global.cache_clear()
+                smooth[a:b, c] = estimator.x(Y[lo:hi, c], tw)[a - lo : b - lo]
+    type(estimator)._global.cache_clear()
     return (smooth[:, 0], deriv[:, 0]) if flat else (smooth, deriv)
+
+
+def tv_differentiate(y: np.ndarray, t: np.ndarray, alpha: float, **kwargs: int | float) -> tuple[np.ndarray, np.ndarray]:
+    """Total-variation (trend-filtered) smoothed ``y`` and dy/dt: :func:`differentiate` with its defaults."""
+    return differentiate(y, t, alpha, kind="trend_filtered", **kwargs)
 
 
 def tv_derivative(y: np.ndarray, t: np.ndarray, alpha: float, **kwargs: int | float) -> np.ndarray:
     """Total-variation regularised dy/dt of ``y`` ((N,) or (N, c)) at uniform times ``t``.
 
-    Keywords (``order``, ``window``, ``margin``, ``tol``, ``max_iter``, ``blas_threads``) go to
-    :func:`tv_differentiate`.
+    Keywords (``order``, ``window``, ``margin``, ``first_keep``, ``tol``, ``max_iter``, ``precompute``,
+    ``blas_threads``, ``quiet``) go to :func:`differentiate`.
     """
     return tv_differentiate(y, t, alpha, **kwargs)[1]
 
 
 def segment_derivatives(
-    ys: Sequence[np.ndarray], ts: Sequence[np.ndarray], alpha: float, **kwargs: int | float
+    ys: Sequence[np.ndarray], ts: Sequence[np.ndarray], alpha: float, *, where: Sequence[str] | None = None,
+    **kwargs: Any,
 ) -> list[np.ndarray]:
-    """:func:`tv_derivative` of each segment separately (never across segment boundaries)."""
+    """dy/dt (:func:`differentiate`) of each segment separately, never across segment boundaries.
+
+    ``where`` names each segment in a failing segment's error (e.g. "method 'moe', training
+    segment 'f1'"), so the one-line message says which segment to fix.
+    """
     if len(ys) != len(ts):
         raise DataError(f"segment derivatives: {len(ys)} signals but {len(ts)} time vectors")
-    return [tv_derivative(y, t, alpha, **kwargs) for y, t in zip(ys, ts)]
+    out = []
+    for j, (y, t) in enumerate(zip(ys, ts)):
+        try:
+            out.append(differentiate(y, t, alpha, **kwargs)[1])
+        except DataError as exc:
+            if where is None:
+                raise
+            raise DataError(f"{where[j]}: {exc}") from None
+    return out
