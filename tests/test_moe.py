@@ -27,7 +27,7 @@ from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError, MethodError
 from enginebench.methods.numerics.derivatives import tv_derivative, tv_differentiate, window_bounds
 from enginebench.methods.moe import MoE, frozen_stability, gate_weights, local_coefficients, simulate
-from enginebench.methods.moe_model import moe_loss, signed_softplus
+from enginebench.methods.moe.model import moe_loss, signed_softplus
 
 DT = 0.05
 REGIMES = {"low": (-1.0, 2.0), "high": (-3.0, 0.5)}  # v < 0, v > 0
@@ -386,7 +386,7 @@ def test_input_derivatives_let_the_mixture_model_a_lead():
 
 def test_warm_start_puts_every_expert_at_the_sign_bounded_least_squares_model():
     from enginebench.methods.moe import lstsq_coefficients, warm_start
-    from enginebench.methods.moe_model import MixtureOfExperts
+    from enginebench.methods.moe.model import MixtureOfExperts
 
     rng = np.random.default_rng(0)
     X = np.c_[rng.normal(size=(500, 2)), np.ones(500)]
@@ -430,50 +430,6 @@ def test_signed_softplus_margin_bounds_the_magnitude():
     np.testing.assert_array_equal(free.numpy(), x.numpy())  # a free coefficient ignores the margin
 
 
-def test_first_order_responses_match_the_analytic_solution():
-    from enginebench.methods.moe import first_order_responses
-
-    t = np.arange(2001) * 0.01
-    a = -0.5
-    X = np.c_[np.ones_like(t), np.sin(t)]
-    got = first_order_responses(X, t, a)
-    # x' = a x + 1 and x' = a x + sin t from x(0) = 0
-    step = (np.exp(a * t) - 1.0) / a
-    sine = (-a * np.sin(t) - np.cos(t) + np.exp(a * t)) / (1.0 + a * a)
-    np.testing.assert_allclose(got[:, 0], step, atol=1e-5)  # trapezoid rule: global error O(h^2) = 1e-4 x O(0.1)
-    np.testing.assert_allclose(got[:, 1], sine, atol=1e-5)
-    assert got[0].tolist() == [0.0, 0.0]
-
-
-def test_output_error_fit_recovers_a_known_lti_system():
-    """dz/dt = -0.4 z + 1.5 u + 0.2 sampled by the same trapezoid rule: the pole (on the grid's end,
-    tau = 2.5 s) and the gains come back to rounding; equation error on these derivatives would not
-    matter here, the point is the separable least squares."""
-    from enginebench.methods.moe import first_order_responses, output_error_coefficients
-
-    rng = np.random.default_rng(4)
-    Xs, Zs, Ts = [], [], []
-    for _ in range(3):
-        t = np.arange(600) * 0.1
-        u = np.sin(0.3 * t + rng.uniform(0, 6)) + 0.5 * np.sin(1.1 * t + rng.uniform(0, 6))
-        z0 = rng.normal()
-        r = first_order_responses(np.c_[u, np.ones_like(u)], t, -0.4)
-        p = (1 - 0.02) / (1 + 0.02)
-        z = z0 * p ** np.arange(600) + r @ np.array([1.5, 0.2])
-        Xs.append(np.c_[z, u, np.ones_like(u)])
-        Zs.append(z[:, None])
-        Ts.append(t)
-    sign = np.array([[-1.0, 0.0, 0.0]])
-    theta, tau, mse = output_error_coefficients(Xs, Zs, Ts, sign, np.zeros((1, 3)), np.array([2.0]), 2.5, 12)
-    assert tau[0] == pytest.approx(2.5) and mse[0] < 1e-20
-    np.testing.assert_allclose(theta * 2.0, [[-0.4, 1.5, 0.2]], rtol=1e-9)  # network units: divided by d_scale
-    # the grid never offers a pole slower than max_time_constant: 1 s forces a = -1
-    theta, tau, mse = output_error_coefficients(Xs, Zs, Ts, sign, np.zeros((1, 3)), np.array([1.0]), 1.0, 12)
-    assert tau[0] == pytest.approx(1.0) and theta[0, 0] == pytest.approx(-1.0) and mse[0] > 1e-4
-    with pytest.raises(MethodError, match="constrained positive"):
-        output_error_coefficients(Xs, Zs, Ts, -sign, np.zeros((1, 3)), np.array([1.0]), 2.5, 12)
-
-
 def test_affine_prefix_scan_equals_the_sequential_recurrence():
     from enginebench.methods.moe import affine_prefix_scan
 
@@ -490,17 +446,17 @@ def test_affine_prefix_scan_equals_the_sequential_recurrence():
     np.testing.assert_allclose(got.numpy(), torch.stack(ref, 1).numpy(), rtol=1e-12, atol=1e-12)
 
 
-def test_margin_and_output_error_start_and_simulation_loss(train, test_data):
+def test_margin_and_simulation_loss(train, test_data):
     """max_time_constant = 0.5 s binds (the true regimes have a = -1 and -3): every expert's own-state
-    coefficient stays <= -2 everywhere; the output-error start reports its pole; the simulation
-    term trains and its windows are simulated exactly like ``simulate``."""
-    method = MoE(scheduler=["v"], batch_size=2048, device="cpu", dtype="float64", init="output_error",
+    coefficient stays <= -2 everywhere; the simulation term trains and its windows are simulated
+    exactly like ``simulate``."""
+    method = MoE(scheduler=["v"], batch_size=2048, device="cpu", dtype="float64",
                  max_time_constant=0.5, sim_weight=1.0, shooting_window=5.0)
     fitted = method.fit(train, {"n_experts": 2, "epochs": 20, "lr": 1e-2}, np.random.default_rng(0))
     verdict = frozen_stability(fitted)
     assert verdict["max_state_coefficient"] <= -2.0 + 1e-9 and verdict["stable"]
     d = method.describe(fitted)
-    assert d["warm_start"]["init"] == "output_error" and d["warm_start"]["time_constant_s"] == [pytest.approx(0.5)]
+    assert d["warm_start"] == {"init": "lstsq"}
     assert d["max_time_constant_s"] == 0.5 and d["sim_weight"] == 1.0 and d["corrected"] == {}
     json.dumps(d)
     pred = method.predict(fitted, test_data.without_targets())
@@ -509,13 +465,36 @@ def test_margin_and_output_error_start_and_simulation_loss(train, test_data):
         MoE(scheduler=["v"], signs="none", max_time_constant=1.0).fit(train, {"epochs": 1}, np.random.default_rng(0))
     with pytest.raises(MethodError, match="quasi-LPV"):
         MoE(scheduler=["v"], scheduler_state=True, sim_weight=1.0).fit(train, {"epochs": 1}, np.random.default_rng(0))
-    for bad in ({"max_time_constant": -1}, {"sim_weight": -1.0}, {"init": "oe"}, {"correct": {"z": {"v": [0, 1]}}}):
+    for bad in ({"max_time_constant": -1}, {"sim_weight": -1.0}, {"init": "oe"}, {"correct": {"z": {"v": [0, 1]}}},
+                {"derivative_window": 0}, {"shooting_window": "20 s"}):
         with pytest.raises(MethodError):
             MoE(**bad)
+    with pytest.raises(MethodError, match=r"option init='output_error'; only 'lstsq'.* removed"):
+        MoE(init="output_error")
+
+
+def test_time_windows_default_to_samples_and_explicit_seconds_still_work():
+    """derivative_window / shooting_window None = 24 / 240 samples whatever dt (at 12 Hz: the former
+    2 s / 20 s); a number is seconds."""
+    from enginebench.methods.moe import input_derivative
+    from enginebench.methods.moe.training import _Shooting
+
+    rng = np.random.default_rng(2)
+    for dt in (1.0 / 12.0, 0.05, 3.0):
+        t = np.arange(600) * dt
+        x = np.cumsum(rng.standard_normal((600, 1)), axis=0)
+        by_samples = input_derivative(x, t, 1)
+        np.testing.assert_array_equal(by_samples, input_derivative(x, t, 1, 24 * dt))
+        shoot = _Shooting([x], [x], [t], None, [0], [0], np.ones(1))
+        assert shoot.width == 241 and _Shooting([x], [x], [t], 10 * dt, [0], [0], np.ones(1)).width == 11
+    t12 = np.arange(600) / 12.0
+    np.testing.assert_array_equal(input_derivative(x, t12, 2), input_derivative(x, t12, 2, 2.0))
+    assert MoE().options["derivative_window"] is None and MoE().options["shooting_window"] is None
 
 
 def test_rollout_of_training_windows_equals_simulate(model, short_data):
-    from enginebench.methods.moe import _Sim, build_network
+    from enginebench.methods.moe import build_network
+    from enginebench.methods.moe.simulation import _Sim
 
     _, fitted = model
     seg = short_data.segments[0]

@@ -1,0 +1,141 @@
+"""Training: seed 003's collaborative + competitive loss on the TV derivatives, with Adam, from the
+least-squares warm start; optionally plus the open-loop simulation error of short training windows."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from enginebench.datasets.samples import Samples
+from enginebench.errors import MethodError
+from enginebench.methods.moe.fitted import MoEFitted, torch_dtype
+from enginebench.methods.moe.model import MixtureOfExperts, moe_loss
+from enginebench.methods.moe.options import SHOOTING_WINDOW_SAMPLES, resolve_params, window_steps
+from enginebench.methods.moe.preprocess import margin_matrix, prepare
+from enginebench.methods.moe.simulation import _Sim
+from enginebench.methods.moe.warmstart import lstsq_coefficients, warm_start
+from enginebench.methods.numerics.device import cpu_threads, resolve_device
+
+
+def fit_mixture(train: Samples, params: Mapping[str, Any], o: Mapping[str, Any], rng: np.random.Generator) -> MoEFitted:
+    """Prepare the training samples, start every expert at the least-squares model, train, and pack the result."""
+    hp = resolve_params(params)
+    p = prepare(train, o)
+    sign, d_scale, V, X = p.sign, p.d_scale, p.V, p.X
+    margin = margin_matrix(o["max_time_constant"], sign, d_scale, train.target_names)
+    device, dtype = resolve_device(o["device"], "method 'moe'"), torch_dtype(o["dtype"])
+    gen = torch.Generator().manual_seed(int(rng.integers(0, 2**63 - 1)))
+    net = MixtureOfExperts(
+        V.shape[1], len(train.target_names), X.shape[1], hp["n_experts"], o["expert_hidden"], hp["gate_hidden"],
+        torch.as_tensor(sign), hp["k"], gen, dtype, torch.as_tensor(margin),
+    )
+    theta = lstsq_coefficients(X, p.D, sign, margin)
+    warm_start(net, theta, sign, hp["k"], margin)
+    init_info: dict[str, Any] = {"init": "lstsq", "theta": theta.tolist()}
+    net = net.to(device)
+    with cpu_threads(o["cpu_threads"], device):
+        shoot = None
+        if o["sim_weight"] > 0:
+            if o["scheduler_state"]:
+                raise MethodError(
+                    "method 'moe': sim_weight > 0 trains on simulated LPV trajectories; a state-scheduled "
+                    "(quasi-LPV) model is not supported: set scheduler_state=False or sim_weight=0"
+                )
+            shoot = _Shooting(p.Us, p.Z, p.T, o["shooting_window"], p.si, p.ei, d_scale)
+        history = _train(net, V, X, p.D, hp, o, gen, device, dtype, shoot)
+    if o["clip_schedulers"]:
+        net.v_lo.copy_(torch.as_tensor(V.min(0), dtype=dtype))
+        net.v_hi.copy_(torch.as_tensor(V.max(0), dtype=dtype))
+    n_probe = min(o["probe_points"], len(V))
+    probe = V[np.sort(rng.choice(len(V), size=n_probe, replace=False))]
+    return MoEFitted(
+        params=hp, options=dict(o), input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+        scheduler_inputs=tuple(p.scheduler_inputs), expert_inputs=tuple(p.expert_inputs), sign=sign,
+        u_mean=p.u_mean, u_scale=p.u_scale, y_mean=p.y_mean, y_scale=p.y_scale, d_scale=d_scale,
+        y_min=p.y_min, y_max=p.y_max,
+        weights={k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()},
+        probe=probe, loss_history=history, derived=p.derived, init_info=init_info,
+    )
+
+
+class _Shooting:
+    """Training windows for the simulation-error term: every segment cut into windows of
+    ``window_s`` seconds (``SHOOTING_WINDOW_SAMPLES`` steps when None) from a random offset per
+    epoch, each simulated open loop from its measured first value (multiple shooting), batched
+    over windows."""
+
+    def __init__(self, Us: Sequence[np.ndarray], Zs: Sequence[np.ndarray], Ts: Sequence[np.ndarray],
+                 window_s: float | None, si: list[int], ei: list[int], d_scale: np.ndarray) -> None:
+        self.Us, self.Zs, self.Ts, self.si, self.ei, self.d_scale = Us, Zs, Ts, si, ei, d_scale
+        h = float(np.median(np.concatenate([np.diff(t) for t in Ts if len(t) > 1])))
+        steps = window_steps(window_s, h, SHOOTING_WINDOW_SAMPLES)
+        self.width = int(max(2, min(steps + 1, min(len(z) for z in Zs))))
+
+    def cut(self, gen: torch.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(U (S, W, n_u), H (S, W-1), Z (S, W, k)) of this epoch's windows."""
+        W = self.width
+        offset = int(torch.randint(0, W, (1,), generator=gen))
+        starts = [
+            (j, a) for j, z in enumerate(self.Zs) for a in range(offset if len(z) - offset >= W else 0, len(z) - W + 1, W)
+        ]
+        idx = np.arange(W)
+        U = np.stack([self.Us[j][a + idx] for j, a in starts])
+        Z = np.stack([self.Zs[j][a + idx] for j, a in starts])
+        H = np.stack([np.diff(self.Ts[j][a + idx]) for j, a in starts])
+        return U, H, Z
+
+    def loss(self, net: MixtureOfExperts, o: dict[str, Any], U: torch.Tensor, H: torch.Tensor, Z: torch.Tensor) -> torch.Tensor:
+        """Mean squared simulation error (standardised units) of windows ``U``, ``H``, ``Z``."""
+        inf = torch.full((Z.shape[-1],), torch.inf, dtype=Z.dtype, device=Z.device)
+        sim = _Sim(
+            options=o, n_experts=net.n_experts, net=net, U=U, H=H, lo=-inf, hi=inf,
+            d_scale=torch.as_tensor(self.d_scale, dtype=Z.dtype, device=Z.device), si=self.si, ei=self.ei,
+            record_gate=False,
+        )
+        return ((sim.rollout(Z[:, 0]) - Z) ** 2).mean()
+
+
+def _train(
+    net: MixtureOfExperts, V: np.ndarray, X: np.ndarray, D: np.ndarray, hp: dict[str, Any], o: dict[str, Any],
+    gen: torch.Generator, device: torch.device, dtype: torch.dtype, shoot: _Shooting | None = None,
+) -> list[float]:
+    """Adam on seed 003's loss with shuffled minibatches; returns the mean loss per epoch.
+
+    With ``shoot`` (option sim_weight > 0) every step adds sim_weight times the simulation error of
+    a share of the epoch's windows (each window once per epoch): the derivative loss weights
+    the fast dynamics, the simulation error the slow pole and the static gains that an
+    open-loop prediction accumulates.
+    """
+    Vt, Xt, Dt = (torch.as_tensor(a, dtype=dtype, device=device) for a in (V, X, D))
+    opt = torch.optim.Adam(net.parameters(), lr=hp["lr"])
+    n, bs = len(Vt), int(o["batch_size"])
+    n_steps = -(-n // bs)
+    history = []
+    net.train()
+    for _ in range(hp["epochs"]):
+        perm = torch.randperm(n, generator=gen).to(device)
+        if shoot is not None:
+            Uw, Hw, Zw = (torch.as_tensor(a, dtype=dtype, device=device) for a in shoot.cut(gen))
+            wperm = torch.randperm(len(Zw), generator=gen).to(device)
+            per = -(-len(Zw) // n_steps)
+        total = torch.zeros((), dtype=dtype, device=device)
+        for step, a in enumerate(range(0, n, bs)):
+            idx = perm[a : a + bs]
+            f, alpha = net(Vt[idx], Xt[idx])
+            loss = moe_loss(f, alpha, Dt[idx], hp["beta1"], hp["beta2"], o["competitive"])
+            if shoot is not None:
+                w = wperm[step * per : (step + 1) * per]
+                if len(w):
+                    loss = loss + o["sim_weight"] * shoot.loss(net, o, Uw[w], Hw[w], Zw[w])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += loss.detach() * len(idx)
+        history.append(float(total) / n)
+    net.eval()
+    if not np.isfinite(history[-1]):
+        raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or check the data")
+    return history
+
