@@ -69,13 +69,14 @@ def guard(run_ref: str, baseline: str, tolerance: str, strict: bool, all_rows: b
     value, the run's value, the allowed limit and the excess. A method with more failed
     repetitions than published fails too. Bad input exits 2.
     """
+    from enginebench.experiments.run_dataset import run_dataset
     from enginebench.results.guard import guard_run, load_baseline, parse_tolerance, report
     from enginebench.results.store import RunStore
 
     tol = parse_tolerance(tolerance)
     doc = load_baseline(baseline)
     run = RunStore(store).get(run_ref)
-    result = guard_run(run, doc, tol, strict=strict)
+    result = guard_run(run, doc, tol, strict=strict, dataset_hash=run_dataset(run).content_hash)
     click.echo(report(result, run.id, doc["path"], all_rows=all_rows), nl=False)
     sys.exit(0 if result.passed else 1)
 
@@ -96,12 +97,15 @@ def publish(run_ref: str, output: str, metrics: str, interval, measure: bool, st
     The baseline states the numeric tolerance each method needs to be reproduced on
     another machine, measured by rerunning the experiment (see --measure-tolerance).
     """
+    from enginebench.experiments.run_dataset import run_dataset
     from enginebench.results.guard import make_baseline, write_baseline
     from enginebench.results.store import RunStore
 
     check_output(output)
     run = RunStore(store).get(run_ref)
+    data = run_dataset(run)
     doc = make_baseline(run, interval=interval, metric_names=_metric_list(metrics), measure_tolerance=measure,
+                        dataset_hash=data.content_hash, generated_dataset=data.generated,
                         progress=lambda text: click.echo(f"measuring the reproduction tolerance: {text}", err=True))
     path = write_baseline(doc, output)
     methods = sorted({e["method"] for e in doc["entries"]})

@@ -27,17 +27,21 @@ from enginebench.cli.options import check_output, load_plugins, plugin_option, s
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG file for the plot [default: learning_curve.png in the run folder].")
 @click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores].")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
+              help="Where jobs run, as for 'run' [default: local; dask with --scheduler].")
+@click.option("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (as for 'run').")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @store_option
 @plugin_option
 def learning_curve(experiment: str, months: str, methods: str, repeats, rows: str, train_size, metric: str,
-                   plot_path, workers, quiet, store, plugins) -> None:
+                   plot_path, workers, executor, scheduler, quiet, store, plugins) -> None:
     """Run EXPERIMENT's methods on the first N months of its training data, for each N in --months.
 
     Every amount is scored on the experiment's unchanged test part, with its
     repetitions, subsampling and model selection. The jobs are stored as one run
-    (splits read 'test@3mo'); the table prints the test metric's mean and Student-t
-    95% interval per amount, and a PNG plot is written when matplotlib is installed.
+    (splits read 'test@3mo'; an interrupted curve finishes with `enginebench run --resume
+    RUN`); the table prints the test metric's mean and Student-t 95% interval per
+    amount, and a PNG plot is written when matplotlib is installed.
     """
     from enginebench.experiments.learning_curve import (
         PLOT_FILE, SUMMARY_FILE, curve_table, parse_months, plot_curve, run_learning_curve, summarize_curve,
@@ -68,7 +72,8 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
                             description=f"{spec.name}: {job.split} {job.method} r{job.repetition}")
 
         result = run_learning_curve(spec, amounts, RunStore(store), rows=rows, workers=workers,
-                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=tick)
+                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=tick,
+                                    executor=executor or ("dask" if scheduler else "local"), scheduler=scheduler)
     summary = (result.run.read_table(SUMMARY_FILE) if metric == "mae"
                else summarize_curve(result.run.metrics(), metric=metric))
     click.echo(f"Learning curve of {spec.name} ({spec.dataset}, {spec.mode}); amounts: "

@@ -27,26 +27,6 @@ def load_plugins(plugins: tuple[str, ...]) -> None:
         load_plugin_file(path)
 
 
-def check_resumable(run) -> None:
-    """Before resuming ``run``: the same plugin files as when it was made, and no other process writing it.
-
-    The lock taken here is held until the run is marked finished or interrupted, or the
-    command ends (whichever comes first; a refused resume leaves no lock file behind);
-    see ``results.store.Run.lock``.
-    """
-    from enginebench.errors import StoreError
-
-    why = run.damage()
-    if why is not None:
-        raise StoreError(f"run {run.id} cannot be resumed: {why}, so the run folder is damaged; start a new run "
-                         f"(`enginebench runs rm {run.id}` removes this one)")
-    run.check_plugins("resumed")
-    run.lock()
-    ctx = click.get_current_context(silent=True)
-    if ctx is not None:
-        ctx.call_on_close(run.unlock)
-
-
 def emit(text: str, output: str | None) -> None:
     """Write ``text`` to ``output`` (saying so on stderr) or to standard output."""
     if output:

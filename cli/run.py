@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from enginebench.cli.options import check_resumable, load_plugins, plugin_option, store_option
+from enginebench.cli.options import load_plugins, plugin_option, store_option
 
 
 @click.command()
@@ -51,45 +51,44 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     signal.signal(signal.SIGTERM, lambda signum, frame: (_ for _ in ()).throw(SystemExit(128 + signum)))
     load_plugins(plugins)
     store_obj = RunStore(store)
-    resume = None
+    resume = spec = None
     if resume_ref:
         if experiment or repeats or methods or seed is not None or train_size is not None:
             raise SpecError("--resume RUN takes the run's own config; give no EXPERIMENT or overrides with it")
-        resume = store_obj.get(resume_ref)
-        check_resumable(resume)  # same plugin files as when it was made; no other process writing it
-        from enginebench.experiments.spec import from_dict
-
-        experiment_spec = from_dict(resume.config(), origin=f"run {resume.id}")
+        resume = store_obj.get(resume_ref)  # the store checks and prepares it (Run.prepare_resume)
+        name = resume.id
     elif not experiment:
         raise SpecError("give an EXPERIMENT (built-in name or .toml file) or --resume RUN")
-    spec = experiment_spec if resume else load_spec(experiment)
-    overrides = {"repetitions": repeats, "seed": seed, "train_size": train_size}
-    if methods:
-        overrides["methods"] = [m.strip() for m in methods.split(",") if m.strip()]
-        overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
-    if not resume:
+    else:
+        spec = load_spec(experiment)
+        overrides = {"repetitions": repeats, "seed": seed, "train_size": train_size}
+        if methods:
+            overrides["methods"] = [m.strip() for m in methods.split(",") if m.strip()]
+            overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
         spec = spec.with_overrides(**overrides)
+        name = spec.name
     console = Console(stderr=True)
     progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                         TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=quiet, transient=False)
     with progress:
-        task = progress.add_task(f"{spec.name}: preparing", total=None)
+        task = progress.add_task(f"{name}: preparing", total=None)
 
         def tick(done: int, total: int, job) -> None:
             progress.update(task, completed=done, total=total,
-                            description=f"{spec.name}: {job.method} r{job.repetition}")
+                            description=f"{name}: {job.method} r{job.repetition}")
 
         result = run_experiment(spec, store_obj, workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
                                 progress=tick, resume=resume, executor=executor or ("dask" if scheduler else "local"),
                                 scheduler=scheduler)
-        progress.update(task, description=f"{spec.name}: done")
+        progress.update(task, description=f"{name}: done")
     raw = result.run.metrics()
-    summary = summarize(raw, interval=spec.interval)
+    cfg = result.run.config()
+    summary = summarize(raw, interval=cfg.get("interval", "t"))
     out = Console()
-    out.print(to_rich(summary, title=f"{spec.name} ({spec.dataset}, {spec.mode})"))
+    out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})"))
     from enginebench.results.tables import default_paired_metric
 
-    paired_metric = default_paired_metric(spec.mode)
+    paired_metric = default_paired_metric(cfg.get("mode", ""))
     click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric), nl=False)
     for key, why in result.damaged.items():
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")

@@ -12,8 +12,8 @@ import time
 import traceback
 import warnings
 import zlib
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
@@ -42,10 +42,20 @@ class Job:
 
 @dataclass(frozen=True)
 class Problem:
-    """The samples of one (target, window, split): the training pool and the evaluated parts."""
+    """The samples of one (target, window, split): the training pool and the evaluated parts.
+
+    A plan over the runner may add job coordinates of its own through the split name
+    (e.g. a learning curve's ``published@3mo``, one problem per amount of training
+    data): ``train_size`` then replaces the experiment's, ``coordinates`` become columns
+    of every metric row and entries of the job's metadata (with ``n_train``, the rows the
+    job was fitted on), and ``label`` is appended to the scored parts' names (``test@3mo``).
+    """
 
     train: Samples | SamplePool
     parts: dict[str, Samples | SamplePool]
+    train_size: int | None = None
+    coordinates: dict[str, Any] = field(default_factory=dict)
+    label: str = ""
 
 
 @dataclass
@@ -57,6 +67,8 @@ class Context:
     problems: dict[tuple[str, float, str], Problem]
     methods: dict[str, Method]
     dataset_hash: str = ""
+    finish: Callable[[Any], None] | None = None
+    """Called with the run once every job is stored (a learning curve writes its summary table)."""
 
 
 def stable_int(text: str) -> int:
@@ -86,9 +98,15 @@ def training_samples(spec: ExperimentSpec, problem: Problem, repetition: int, sp
     In simulation mode a trajectory is only usable whole, so whole segments are drawn.
     """
     sub_rng = np.random.default_rng([spec.seed, repetition, stable_int(split)])
+    size = train_size(spec, problem)
     if spec.mode == "simulation":
-        return problem.train.take(subsample_segments(problem.train.segment_sizes, spec.train_size, sub_rng))
-    return problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
+        return problem.train.take(subsample_segments(problem.train.segment_sizes, size, sub_rng))
+    return problem.train.take(subsample(len(problem.train), size, sub_rng))
+
+
+def train_size(spec: ExperimentSpec, problem: Problem) -> int:
+    """The training subsample size of a problem: its own (a learning curve's amount) or the experiment's."""
+    return spec.train_size if problem.train_size is None else problem.train_size
 
 
 def refit_samples(spec: ExperimentSpec, problem: Problem, train: Samples, repetition: int, split: str) -> Samples:
@@ -108,7 +126,7 @@ def refit_samples(spec: ExperimentSpec, problem: Problem, train: Samples, repeti
                  .materialize() if raw is not None else part.materialize())
         return train.joined(whole)
     rng = np.random.default_rng([spec.seed, repetition, stable_int(split), stable_int("validation")])
-    return train.joined(part.take(subsample(len(part), spec.train_size, rng)))
+    return train.joined(part.take(subsample(len(part), train_size(spec, problem), rng)))
 
 
 def method_rng(spec: ExperimentSpec, job: Job) -> np.random.Generator:
@@ -190,6 +208,12 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         rows.append({**base, "split": "-", "metric": f"time_{name}", "value": value})
     frame = pd.DataFrame(rows)
     frame["status"] = meta["status"]
+    if problem.coordinates:
+        meta.update(problem.coordinates)
+        frame = frame.assign(**problem.coordinates, n_train=int(meta.get("n_train", -1)))
+    if problem.label:
+        scored = frame["split"] != "-"
+        frame.loc[scored, "split"] = frame.loc[scored, "split"] + problem.label
     return frame, meta
 
 

@@ -17,10 +17,12 @@ Rows per amount (``rows``):
 * ``"fixed"``: ``train_size`` rows for every amount (all rows while fewer exist), so
   only the coverage of operating conditions grows.
 
-Each amount is a prepared runner context whose split names carry the amount
-(``published@3mo``); the jobs are the runner's own (``jobs.run_job``), run by the
-runner's executor and written to one run of the store. Metric rows get the columns
-``train_months`` and ``n_train``, and their split reads ``test@3mo`` so that
+The curve is one plan over the runner: the training amount is one more job coordinate
+(a problem per (target, window, split, amount), its split named ``published@3mo``, its
+own ``train_size``), so the jobs are the runner's own (``jobs.run_job``), run by any of
+its executors (local pool or Dask), written to one run of the store, and an interrupted
+curve resumes with ``enginebench run --resume RUN`` like any run. Metric rows get the
+columns ``train_months`` and ``n_train``, and their split reads ``test@3mo`` so that
 ``enginebench table`` keeps the amounts apart.
 """
 
@@ -29,23 +31,24 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
 
-from enginebench.datasets import catalog
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.samples import RawSegments, SamplePool
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import SpecError
 from enginebench.experiments import environment
-from enginebench.experiments.executors import default_workers, run_local
+from enginebench.experiments.executors import check_executor
 from enginebench.experiments.jobs import Context, Job, Problem
-from enginebench.experiments.runner import physical_model_for, plan
-from enginebench.experiments.spec import ExperimentSpec
+from enginebench.experiments.runner import (
+    check_protocol, check_workers, execute, load_dataset, physical_model_for, plan,
+)
+from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
 from enginebench.results.stats import t_interval
 from enginebench.results.store import Run, RunStore
@@ -55,7 +58,6 @@ MONTH_S = 365.25 / 12.0 * 86400.0
 ROW_POLICIES = ("proportional", "fixed")
 MIN_TRAIN_ROWS = 50
 """Fewest training rows an amount gets under the proportional policy."""
-DEFAULT_METHODS = ("krls", "mtl-krls")
 SUMMARY_FILE = "learning_curve.parquet"
 PLOT_FILE = "learning_curve.png"
 
@@ -122,38 +124,34 @@ def _amount_size(policy: str, train_size: int, available: int, total: int) -> in
 
 @dataclass
 class CurvePlan:
-    """Everything the curve needs, loaded once; the per-amount contexts are built on demand."""
+    """A learning curve prepared as one runner context: the sizes of its amounts and the problems of all of them."""
 
     spec: ExperimentSpec
-    dataset: str
-    methods: dict
-    physical_model: object
-    splits: list
-    parts: dict
-    min_rows: int
+    months: list[float]
+    rows: str
     amounts: list[Amount]
-
-    def context(self, amount: Amount) -> Context:
-        """The runner context of one amount: training parts cut to its first months, test parts shared."""
-        spec = self.spec
-        problems = {}
-        for split in self.splits:
-            train = first_months(split.train, amount.months, self.min_rows)
-            name = f"{split.name}@{amount.label}"
-            for target in spec.targets:
-                for window in spec.windows:
-                    samples = make_samples(train, [target], spec.mode, window, physical_model=self.physical_model)
-                    problems[(target, window, name)] = Problem(train=samples, parts=self.parts[(target, window, split.name)])
-        return Context(spec=replace(spec, train_size=amount.train_size), dataset=self.dataset, problems=problems,
-                       methods=self.methods)
+    context: Context
 
     def n_jobs(self) -> int:
-        s = self.spec
-        return len(self.amounts) * s.repetitions * len(s.targets) * len(s.windows) * len(self.splits) * len(s.methods)
+        return len(plan(self.context))
+
+
+def _training_problems(spec: ExperimentSpec, split_name: str, train: Dataset, amount: Amount, pm: object,
+                       parts: dict) -> dict[tuple[str, float, str], Problem]:
+    """The problems of one split at one amount: the training part cut to its first months, the parts shared."""
+    raw = RawSegments.from_dataset(train, outputs=spec.targets, internals=[])
+    name = f"{split_name}@{amount.label}"
+    return {(target, window, name): Problem(
+        train=SamplePool(raw, [target], spec.mode, window, physical_model=pm),
+        parts=parts[(target, window, split_name)], train_size=amount.train_size,
+        coordinates={"train_months": amount.months}, label=f"@{amount.label}")
+        for target in spec.targets for window in spec.windows}
 
 
 def prepare_curve(spec: ExperimentSpec, months: Sequence[float], rows: str = "proportional") -> CurvePlan:
-    """Load the data and methods once and size every amount of training data (fails early on bad input)."""
+    """Load the data and methods once, size every amount of training data and build the runner context of the
+    curve: one problem per (target, window, split, amount), split names ``published@3mo`` (fails early on bad input).
+    """
     if rows not in ROW_POLICIES:
         raise SpecError(f"learning curve: rows must be one of {', '.join(ROW_POLICIES)}, got {rows!r}")
     if spec.mode == "simulation":
@@ -164,40 +162,44 @@ def prepare_curve(spec: ExperimentSpec, months: Sequence[float], rows: str = "pr
         method = registry.get(name)(**spec.method_options.get(name, {}))
         method.check_mode(spec.mode)
         methods[name] = method
-    ds = catalog.load(spec.dataset, variant=spec.dataset_variant)
-    if spec.roles:
-        ds = ds.with_roles(spec.roles)
+    ds, dataset_hash = load_dataset(spec)
     pm = physical_model_for(ds)
     splits = make_splits(ds, **spec.split)
     min_rows = int(round(max(spec.windows) / ds.dt)) + 1
-    parts = {(target, window, split.name): {name: make_samples(part, [target], spec.mode, window, physical_model=pm)
-                                            for name, part in split.parts().items()}
-             for target in spec.targets for window in spec.windows for split in splits}
+    parts = {}
+    for split in splits:
+        raws = {name: RawSegments.from_dataset(part, outputs=spec.targets, internals=[])
+                for name, part in split.parts().items()}
+        for target in spec.targets:
+            for window in spec.windows:
+                parts[(target, window, split.name)] = {
+                    name: SamplePool(raw, [target], spec.mode, window, physical_model=pm) for name, raw in raws.items()}
     usable = {s.name: len(first_months(s.train, math.inf, min_rows)) for s in splits}
-    amounts = []
+    amounts, problems = [], {}
     for m in sorted(months):
-        available, hours = {}, {}
+        cut = {}
         for split in splits:
-            n = len(first_months(split.train, m, min_rows))
-            if n == 0:
+            cut[split.name] = first_months(split.train, m, min_rows)
+            if len(cut[split.name]) == 0:
                 raise SpecError(f"learning curve: the first {m:g} month(s) of split {split.name!r} hold no usable "
                                 f"training segment (need {min_rows} consecutive rows); ask for more months")
-            available[split.name] = n
-            hours[split.name] = n * ds.dt / 3600.0
+        available = {name: len(part) for name, part in cut.items()}
+        hours = {name: n * ds.dt / 3600.0 for name, n in available.items()}
         size = max(_amount_size(rows, spec.train_size, available[s.name], usable[s.name]) for s in splits)
         whole = all(available[s.name] == usable[s.name] for s in splits)
-        amounts.append(Amount(months=float(m), train_size=size, available_rows=available, hours=hours, whole=whole))
-    return CurvePlan(spec=spec, dataset=ds.name, methods=methods, physical_model=pm, splits=splits, parts=parts,
-                     min_rows=min_rows, amounts=amounts)
+        amount = Amount(months=float(m), train_size=size, available_rows=available, hours=hours, whole=whole)
+        amounts.append(amount)
+        for split in splits:
+            problems.update(_training_problems(spec, split.name, cut.pop(split.name), amount, pm, parts))
+    ctx = Context(spec=spec, dataset=ds.name, problems=problems, methods=methods, dataset_hash=dataset_hash,
+                  finish=write_summary)
+    check_protocol(spec, problems)
+    return CurvePlan(spec=spec, months=[a.months for a in amounts], rows=rows, amounts=amounts, context=ctx)
 
 
-def _tag_rows(rows: pd.DataFrame, meta: dict, amount: Amount) -> pd.DataFrame:
-    rows = rows.copy()
-    rows["train_months"] = amount.months
-    rows["n_train"] = int(meta.get("n_train", -1))
-    scored = rows["split"] != "-"
-    rows.loc[scored, "split"] = rows.loc[scored, "split"] + f"@{amount.label}"
-    return rows
+def write_summary(run: Run) -> None:
+    """Store the curve's summary table in the run (``SUMMARY_FILE``), once every job is in."""
+    run.write_table(SUMMARY_FILE, summarize_curve(run.metrics()))
 
 
 @dataclass
@@ -217,6 +219,18 @@ def curve_config(spec: ExperimentSpec, months: Sequence[float], rows: str) -> tu
     return config, digest
 
 
+def curve_settings(config: dict, origin: str) -> tuple[ExperimentSpec, list[float], str, str]:
+    """A stored learning-curve run's (experiment, months, rows policy, config hash), to resume it."""
+    settings = config.get("learning_curve")
+    try:
+        months = [float(m) for m in settings["months"]]
+        rows = str(settings["rows"])
+    except (TypeError, KeyError, ValueError):
+        raise SpecError(f"{origin}: its [learning_curve] table needs months (a list of numbers) and rows") from None
+    spec = from_dict({k: v for k, v in config.items() if k != "learning_curve"}, origin=origin)
+    return spec, months, rows, curve_config(spec, months, rows)[1]
+
+
 def run_learning_curve(
     spec: ExperimentSpec,
     months: Sequence[float],
@@ -226,38 +240,26 @@ def run_learning_curve(
     workers: int | None = None,
     plugins: tuple[str, ...] = (),
     progress: ProgressFn | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
 ) -> CurveResult:
-    """Run ``spec``'s methods once per amount of training data; store every job in one run."""
-    workers = default_workers() if workers is None else workers
-    if workers < 1:
-        raise SpecError(f"--jobs must be >= 1, got {workers}")
+    """Run ``spec``'s methods once per amount of training data: one plan over the runner, stored as one run.
+
+    The run resumes like any other (``enginebench run --resume RUN``) and runs on any executor.
+    """
+    workers = check_workers(workers)
+    check_executor(executor, scheduler)
     curve = prepare_curve(spec, months, rows)
-    total = curve.n_jobs()
     config, digest = curve_config(spec, months, rows)
-    run = store.create(f"{spec.name}-learning-curve", config, digest, environment.capture(spec.seed, workers), total)
-    run.update_info(kind="learning-curve", amounts=[
+    run = store.create(f"{spec.name}-learning-curve", config, digest, environment.capture(spec.seed, workers),
+                       curve.n_jobs())
+    run.update_info(kind="learning-curve", dataset_hash=curve.context.dataset_hash, amounts=[
         {"months": a.months, "train_size": a.train_size, "available_rows": a.available_rows, "hours": a.hours,
          "whole_training_period": a.whole}
         for a in curve.amounts])
-    done = failed = 0
-    try:
-        for amount in curve.amounts:
-            ctx = curve.context(amount)
-            for job, (frame, meta) in run_local(ctx, plan(ctx), workers, plugins):
-                meta = {**meta, "train_months": amount.months}
-                run.write_job(job.key, _tag_rows(frame, meta, amount), meta)
-                failed += meta["status"] != "ok"
-                done += 1
-                if progress:
-                    progress(done, total, job)
-            del ctx
-    except BaseException:
-        run.update_info(status="interrupted", finished_jobs=done)
-        raise
-    summary = summarize_curve(run.metrics())
-    run.write_table(SUMMARY_FILE, summary)
-    run.update_info(status="finished", finished_jobs=done, failed_jobs=failed)
-    return CurveResult(run=run, amounts=curve.amounts, n_jobs=total, n_failed=failed)
+    result = execute(curve.context, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
+                     scheduler=scheduler)
+    return CurveResult(run=run, amounts=curve.amounts, n_jobs=result.n_jobs, n_failed=result.n_failed)
 
 
 CURVE_KEYS = ["target", "mode", "window", "method", "train_months"]

@@ -28,7 +28,7 @@ from enginebench.experiments.jobs import Context, Job, Problem
 from enginebench.experiments.selection import record_blocks
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
-from enginebench.results.store import Run, RunStore
+from enginebench.results.store import ResumeState, Run, RunStore
 
 ProgressFn = Callable[[int, int, Job], None]
 
@@ -193,8 +193,29 @@ class RunResult:
     """On resume: job files found damaged (key -> why) and computed again."""
 
 
+def context_of_run(run: Run) -> Context:
+    """The prepared context of a stored run from its own config (an experiment, or a learning curve over one).
+
+    StoreError when the config no longer matches the run's config hash (checked before any data is read).
+    """
+    config = run.config()
+    origin = f"run {run.id}"
+    if "learning_curve" in config:  # a plan over this runner: the training amount is one more job coordinate
+        from enginebench.experiments.learning_curve import curve_settings, prepare_curve
+
+        spec, months, rows, digest = curve_settings(config, origin)
+        build = lambda: prepare_curve(spec, months, rows).context  # noqa: E731
+    else:
+        spec = from_dict(config, origin=origin)
+        digest = spec.config_hash()
+        build = lambda: prepare(spec)  # noqa: E731
+    if digest != run.info().get("config_hash"):
+        raise StoreError(f"run {run.id}: its config.toml no longer matches its config hash; it cannot be resumed safely")
+    return build()
+
+
 def run_experiment(
-    spec: ExperimentSpec,
+    spec: ExperimentSpec | None,
     store: RunStore,
     *,
     workers: int | None = None,
@@ -209,32 +230,59 @@ def run_experiment(
     ``executor`` is ``local`` (in-process or a process pool of ``workers``) or ``dask``
     (the cluster at ``scheduler``, or a LocalCluster of ``workers`` processes without one).
 
-    With ``resume``, the run's own config is used, its finished jobs are kept as they
-    are, and only the missing jobs run (a job is finished once its file exists: files
-    are written atomically, so a half-written job never counts).
+    With ``resume``, the run's own config is used (``spec`` is ignored), its finished jobs
+    are kept as they are, and only the missing jobs run (a job is finished once its file
+    exists: files are written atomically, so a half-written job never counts); the
+    checks and clean-up before that are the store's (``Run.prepare_resume``).
     """
+    workers = check_workers(workers)
+    check_executor(executor, scheduler)
+    if resume is None:
+        ctx = prepare(spec)
+        run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
+                           len(plan(ctx)))
+        run.update_info(dataset_hash=ctx.dataset_hash)
+        return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
+                       scheduler=scheduler)
+    state = resume.prepare_resume()  # refuses a damaged run, other plugin files, a second writer
+    try:
+        ctx = context_of_run(resume)
+    except BaseException:
+        resume.unlock()
+        raise
+    return execute(ctx, resume, workers=workers, plugins=plugins, progress=progress, executor=executor,
+                   scheduler=scheduler, resume=state)
+
+
+def check_workers(workers: int | None) -> int:
+    """``workers`` or all cores; SpecError below one."""
     workers = default_workers() if workers is None else workers
     if workers < 1:
         raise SpecError(f"--jobs must be >= 1, got {workers}")
-    check_executor(executor, scheduler)
-    if resume is not None:
-        spec = from_dict(resume.config(), origin=f"run {resume.id}")
-        if spec.config_hash() != resume.info().get("config_hash"):
-            raise StoreError(f"run {resume.id}: its config.toml no longer matches its config hash; it cannot be resumed safely")
-    ctx = prepare(spec)
+    return workers
+
+
+def execute(
+    ctx: Context,
+    run: Run,
+    *,
+    workers: int,
+    plugins: tuple[str, ...] = (),
+    progress: ProgressFn | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
+    resume: ResumeState | None = None,
+) -> RunResult:
+    """Run the jobs of ``plan(ctx)`` that ``run`` lacks and write each as it arrives; mark the run finished.
+
+    Every plan over the runner ends here (an experiment, a learning curve), so each gets
+    the executors, the store's atomic writes and resume alike.
+    """
     jobs = plan(ctx)
     if resume is None:
-        run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers), len(jobs))
-        run.update_info(dataset_hash=ctx.dataset_hash)
         todo = jobs
     else:
-        run = resume
-        run.lock()  # before anything is touched: a second writer of this run is refused, naming the holder
-        for stale in run.jobs_dir.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
-            stale.unlink(missing_ok=True)
-        damaged = run.damaged_jobs()
-        finished = run.finished_jobs(verify=False) - set(damaged)
-        todo = [j for j in jobs if j.key not in finished]
+        todo = [j for j in jobs if j.key not in resume.finished]
         run.update_info(status="running", resumed=run.info().get("resumed", 0) + 1)
     n_failed = 0
     done = len(jobs) - len(todo)
@@ -258,5 +306,7 @@ def run_experiment(
         if spill_dir is not None:
             shutil.rmtree(spill_dir, ignore_errors=True)
     n_failed = sum(run.job_meta(j.key).get("status") != "ok" for j in jobs) if resume is not None else n_failed
+    if ctx.finish is not None:
+        ctx.finish(run)
     run.update_info(status="finished", finished_jobs=done, failed_jobs=n_failed)
-    return RunResult(run=run, n_jobs=len(jobs), n_failed=n_failed, damaged=damaged if resume is not None else {})
+    return RunResult(run=run, n_jobs=len(jobs), n_failed=n_failed, damaged=dict(resume.damaged) if resume else {})

@@ -12,6 +12,11 @@ from enginebench.errors import MethodError
 
 FAMILIES = ("physical", "data-driven", "hybrid", "baseline")
 
+EXPLAIN_WEIGHTS = "weights"
+"""``Method.explain`` key: mixing weights per row (sum 1), drawn as stacked bands (a mixture's gate)."""
+EXPLAIN_COMPONENTS = "components"
+"""``Method.explain`` key: additive parts of the prediction per row."""
+
 Params = Mapping[str, Any]
 SearchSpace = dict[str, np.ndarray]
 """Hyperparameter name -> candidate values; model selection searches their product."""
@@ -57,6 +62,9 @@ class Method:
     family: ClassVar[str] = "data-driven"
     modes: ClassVar[frozenset[str]] = frozenset({"static", "window"})
     summary: ClassVar[str] = ""
+    reference_baseline: ClassVar[bool] = False
+    """True for the method results tables measure skill against (``results.tables.BASELINE``
+    names it: the training mean, family "baseline"); exactly one registered method declares it."""
 
     def __init__(self, **options: Any) -> None:
         unknown = set(options) - set(self.default_options())
@@ -84,6 +92,20 @@ class Method:
 
     def describe(self, fitted: Any) -> dict[str, Any]:
         """Interpretable artefacts of a fitted model (selected parameters, equations...)."""
+        return {}
+
+    def explain(self, fitted: Any, data: Samples) -> dict[str, list[np.ndarray]]:
+        """Optional hook: named internal series of the predictions of ``data``, for figures.
+
+        Each value holds one (len(s.rows), k) array per segment of ``data``, aligned with
+        the arrays ``predict`` returns (in simulation mode evaluated along the simulated
+        trajectory, never the measured one). Reserved names that figures draw:
+        ``EXPLAIN_WEIGHTS`` ("weights": k mixing weights summing to 1 per row, e.g. a
+        mixture of experts' gate, drawn as stacked bands under the trajectory) and
+        ``EXPLAIN_COMPONENTS`` ("components": k additive parts of the prediction). Other
+        names are free. The default explains nothing ({}), and figures then draw the
+        prediction alone: the toolkit never recognises a method by its name or class.
+        """
         return {}
 
     def predict_grid(

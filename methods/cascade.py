@@ -52,19 +52,7 @@ TRAIN_ON = ("model", "true")
 
 
 def component_class(name: str) -> type[Method]:
-    """A cascade component by method name: the built-in nfir, moe, sindy, else the registry."""
-    if name == "nfir":
-        from enginebench.methods.nfir import NFIR
-
-        return NFIR
-    if name == "moe":
-        from enginebench.methods.moe import MoE
-
-        return MoE
-    if name == "sindy":
-        from enginebench.methods.sindy import SINDy
-
-        return SINDy
+    """A cascade component by method name, through the registry (built-ins, plugins, registered classes)."""
     from enginebench.methods.registry import get
 
     return get(name)
@@ -244,9 +232,11 @@ class Cascade(Method):
 
     # -- components -----------------------------------------------------------------------
     def _downstream(self, targets: Sequence[str], intermediate: str) -> Method:
-        """The downstream method; a MoE gets the seed's signs (own state -, intermediate +) unless told otherwise."""
+        """The downstream method; one that declares a ``signs`` option (MoE) gets the seed's signs (own state -,
+        intermediate +) unless told otherwise."""
         opts = dict(self.options["downstream_options"])
-        if self.options["downstream"] == "moe" and "signs" not in opts and self.options["intermediate_sign"] != "free":
+        declares_signs = "signs" in self.down_cls.default_options()
+        if declares_signs and "signs" not in opts and self.options["intermediate_sign"] != "free":
             opts["signs"] = {**{t: "-" for t in targets}, **{n: self.options["intermediate_sign"] for n in self.intermediates}}
         return self.down_cls(**opts)
 
@@ -429,6 +419,16 @@ class Cascade(Method):
         """(downstream method, its fitted model, the samples it sees): e.g. for MoE gate weights."""
         down_data, _ = self._prepare_eval(fitted.upstreams, data)
         return fitted.downstream, fitted.fitted, down_data
+
+    def explain(self, fitted: CascadeFitted, data: Samples) -> dict[str, list[np.ndarray]]:
+        """The downstream's own series (e.g. its gate ``weights``) along the cascade's simulation, and each
+        intermediate and surrogate as fed to the downstream (``"intermediate NAME"``, one column)."""
+        down_data, _ = self._prepare_eval(fitted.upstreams, data)
+        out = dict(fitted.downstream.explain(fitted.fitted, down_data))
+        for n in self.surrogates + fitted.intermediates:
+            j = down_data.input_names.index(n)
+            out[f"intermediate {n}"] = [s.U[s.rows, j][:, None] for s in down_data.segments]
+        return out
 
 
 def segment_mae(predictions: np.ndarray, data: Samples) -> np.ndarray:

@@ -13,6 +13,8 @@ Rules that keep a table honest about which code made it:
   checked against them (``plugin_origin``, ``plugin_records``, ``plugin_mismatches``);
 * an installed plugin whose entry point fails to load is listed by ``broken()`` with
   its reason and is refused by name in ``get``; it does not stop every other command.
+  ``get(name)`` imports that name's entry point only (plugins load when asked for);
+  ``available()`` and ``broken()``, for listings, import them all.
 """
 
 from __future__ import annotations
@@ -50,19 +52,34 @@ def _reason(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _entry_points() -> tuple[dict[str, type[Method]], dict[str, str]]:
-    """(loaded classes, broken entry points with their reason), by entry-point name."""
+def _load(ep: Any) -> tuple[type[Method] | None, str | None]:
+    """Import one entry point: (its class, None), or (None, why it is broken, one line)."""
+    try:
+        return _check_class(ep.load(), f"entry point {ep.name!r}"), None
+    except KeyboardInterrupt:
+        raise
+    except MethodError as exc:
+        return None, f"entry point {ep.name} = {ep.value}: {exc}"
+    except BaseException as exc:  # SystemExit too: a broken package must not end the command
+        return None, f"entry point {ep.name} = {ep.value} failed to load: {_reason(exc)}"
+
+
+def _entry_points(name: str | None = None) -> tuple[dict[str, type[Method]], dict[str, str]]:
+    """(loaded classes, broken entry points with their reason), by entry-point name.
+
+    With ``name`` only the entry points of that name are imported: asking for one method
+    never imports (or trips over) another package.
+    """
     found: dict[str, type[Method]] = {}
     broken: dict[str, str] = {}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            found[ep.name] = _check_class(ep.load(), f"entry point {ep.name!r}")
-        except KeyboardInterrupt:
-            raise
-        except MethodError as exc:
-            broken[ep.name] = f"entry point {ep.name} = {ep.value}: {exc}"
-        except BaseException as exc:  # SystemExit too: a broken package must not end the command
-            broken[ep.name] = f"entry point {ep.name} = {ep.value} failed to load: {_reason(exc)}"
+        if name is not None and ep.name != name:
+            continue
+        cls, why = _load(ep)
+        if cls is not None:
+            found[ep.name] = cls
+        else:
+            broken[ep.name] = why
     return found, broken
 
 
@@ -88,7 +105,7 @@ def _register(cls: type[Method], origin: str, plugin: tuple[str, str] | None = N
     if name in _extra:
         existing = _extra[name]
     else:
-        existing = _entry_points()[0].get(name)
+        existing = _entry_points(name)[0].get(name)
     if existing is not None and not getattr(cls, "overrides", False):
         old_file = _origin[name][0] if name in _origin and _extra.get(name) is existing else None
         if not _same_code(existing, cls, old_file, plugin[0] if plugin else None):
@@ -219,10 +236,11 @@ def get(name: str) -> type[Method]:
     """The class registered as ``name``; MethodError naming the alternatives (or why an installed one is broken)."""
     if name in _extra:
         return _extra[name]
-    found, bad = _entry_points()
+    found, bad = _entry_points(name)  # only this name's entry point is imported
     if name in found:
         return found[name]
     if name in bad:
         raise MethodError(f"method {name!r} cannot be used: {bad[name]}; reinstall or fix that package")
-    methods = sorted({*found, *_extra})
+    names = {ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)}  # names only: nothing more is imported
+    methods = sorted(names | set(_extra))
     raise MethodError(f"unknown method {name!r}; available: {', '.join(methods)} (or pass --plugin FILE.py)")

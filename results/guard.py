@@ -37,7 +37,8 @@ the numerics of other CPUs and BLAS threading (``results/reproduce.py``), per me
 times a safety factor. The dataset hash is taken from the run when it records one
 (``dataset_hash`` in run.json), else from the Parquet footer of the dataset file the
 run's config names (the cached built-in in the data home, or the ``.parquet`` file),
-else null.
+else null; that lookup is the caller's (``experiments.run_dataset``), results/ reads no
+dataset.
 
 Guard rule, per published entry: the bound is ``ci_high`` for a lower-is-better metric
 (``ci_low`` for higher-is-better; the published mean where there is no interval); the
@@ -138,33 +139,22 @@ def baseline_from_summary(summary: pd.DataFrame, *, experiment: str, config_hash
     return {**doc, "entries": entries}
 
 
-def dataset_hash(run) -> str | None:
-    """The content hash of the run's dataset: recorded by the run, else from the dataset file's footer."""
+def recorded_dataset_hash(run) -> str | None:
+    """The content hash of the run's dataset as the run recorded it (None for runs made before it was recorded)."""
     recorded = run.info().get("dataset_hash")
-    if recorded:
-        return str(recorded)
-    from enginebench.datasets import catalog
-    from enginebench.datasets.io import read_metadata
-
-    cfg = run.config()
-    ref, variant = str(cfg.get("dataset", "")), str(cfg.get("dataset_variant", "") or "")
-    try:
-        if ref.endswith(".parquet"):
-            path = Path(ref)
-        else:
-            builtin = catalog.get_builtin(ref)
-            path = catalog.cached_path(builtin.name, variant or (builtin.default_size if builtin.generator else ""))
-        return str(read_metadata(path).get("content_hash")) if path.is_file() else None
-    except DataError:  # a .toml import spec, or an unknown name: no stored hash to read
-        return None
+    return str(recorded) if recorded else None
 
 
 def make_baseline(run, *, interval: str | None = None, metric_names: Sequence[str] | None = None,
-                  measure_tolerance: bool = False, perturbations=None, progress=None) -> dict[str, Any]:
+                  measure_tolerance: bool = False, perturbations=None, progress=None,
+                  dataset_hash: str | None = None, generated_dataset: bool = False) -> dict[str, Any]:
     """The baseline of a stored run (``results.store.Run``), optionally restricted to some metrics.
 
     ``measure_tolerance`` reruns the experiment under other machines' numerics
-    (``results.reproduce``) and records each method's measured ``rtol``.
+    (``results.reproduce``) and records each method's measured ``rtol``. ``dataset_hash``
+    (default: the one the run recorded) and ``generated_dataset`` (a synthetic built-in,
+    generated again by the reruns) come from the caller: results/ does not read datasets
+    (``experiments.run_dataset.run_dataset`` looks them up).
     """
     from enginebench import __version__
 
@@ -182,10 +172,12 @@ def make_baseline(run, *, interval: str | None = None, metric_names: Sequence[st
     if measure_tolerance:
         from enginebench.results.reproduce import measure
 
-        reproducibility = measure(run, summary, interval=interval, perturbations=perturbations, progress=progress)
+        reproducibility = measure(run, summary, interval=interval, perturbations=perturbations, progress=progress,
+                                  generated_dataset=generated_dataset)
     return baseline_from_summary(summary, experiment=str(cfg.get("name", info.get("name", ""))),
                                  config_hash=str(info.get("config_hash", "")), dataset=str(cfg.get("dataset", "")),
-                                 dataset_variant=str(cfg.get("dataset_variant", "") or ""), dataset_hash=dataset_hash(run),
+                                 dataset_variant=str(cfg.get("dataset_variant", "") or ""),
+                                 dataset_hash=dataset_hash or recorded_dataset_hash(run),
                                  interval=interval, source=source, reproducibility=reproducibility)
 
 
@@ -374,8 +366,12 @@ def check(baseline: dict[str, Any], summary: pd.DataFrame, tolerance: Tolerance 
     return m, max(ignored, 0)
 
 
-def guard_run(run, baseline: dict[str, Any], tolerance: Tolerance = Tolerance(), strict: bool = False) -> GuardResult:
-    """Check a stored run against a loaded baseline (see the module docstring for the rule)."""
+def guard_run(run, baseline: dict[str, Any], tolerance: Tolerance = Tolerance(), strict: bool = False,
+              dataset_hash: str | None = None) -> GuardResult:
+    """Check a stored run against a loaded baseline (see the module docstring for the rule).
+
+    ``dataset_hash``: the run's dataset content hash (default: the one the run recorded).
+    """
     info, cfg = run.info(), run.config()
     rows, ignored = check(baseline, summarize(run.metrics(), interval=baseline.get("interval", "t")), tolerance)
     warnings = []
@@ -385,7 +381,7 @@ def guard_run(run, baseline: dict[str, Any], tolerance: Tolerance = Tolerance(),
         warnings.append(f"run {run.id} has config hash {str(info.get('config_hash'))[:12]}, the baseline "
                         f"{baseline['config_hash'][:12]}: the experiment was changed (repetitions, seed, methods, options...)")
     published_hash = baseline.get("dataset_hash")
-    run_hash = dataset_hash(run) if published_hash else None
+    run_hash = (dataset_hash or recorded_dataset_hash(run)) if published_hash else None
     if published_hash and run_hash and run_hash != published_hash:
         warnings.append(f"the dataset differs from the published one (content hash {run_hash[:12]} vs {published_hash[:12]})")
     if info.get("status") != "finished":

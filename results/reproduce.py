@@ -104,18 +104,12 @@ print(result.run.path)
 """
 
 
-def _generated(config: dict[str, Any]) -> bool:
-    """Whether the run's dataset is a synthetic built-in (generated, so generated again in a rerun)."""
-    from enginebench.datasets import catalog
+def rerun(run, perturbation: Perturbation, folder: Path, generated_dataset: bool = False) -> Any:
+    """Run ``run``'s experiment again in a fresh process under ``perturbation``; the new run (in ``folder``).
 
-    try:
-        return catalog.get_builtin(str(config.get("dataset", ""))).generator is not None
-    except DataError:
-        return False
-
-
-def rerun(run, perturbation: Perturbation, folder: Path) -> Any:
-    """Run ``run``'s experiment again in a fresh process under ``perturbation``; the new run (in ``folder``)."""
+    ``generated_dataset``: the run's dataset is a synthetic built-in, generated again into
+    the rerun's own data home (so generation differences are measured too).
+    """
     from enginebench.results.store import RunStore
 
     from enginebench.methods.registry import file_sha256
@@ -134,7 +128,7 @@ def rerun(run, perturbation: Perturbation, folder: Path) -> Any:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "args.json").write_text(json.dumps(args), encoding="utf-8")
     env = {**os.environ, **perturbation.env}
-    if _generated(config):
+    if generated_dataset:
         env["ENGINEBENCH_DATA"] = str(folder / "data")
     proc = subprocess.run([sys.executable, "-c", _RERUN, str(folder / "args.json")], env=env,
                           capture_output=True, text=True)
@@ -170,7 +164,8 @@ def relative_differences(a: pd.DataFrame, b: pd.DataFrame) -> pd.DataFrame:
 
 
 def measure(run, summary: pd.DataFrame, *, interval: str, perturbations: Sequence[Perturbation] | None = None,
-            safety: float = SAFETY_FACTOR, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+            safety: float = SAFETY_FACTOR, progress: Callable[[str], None] | None = None,
+            generated_dataset: bool = False) -> dict[str, Any]:
     """Rerun ``run`` under each perturbation and measure each method's tolerance against ``summary``.
 
     Returns the baseline's ``reproducibility`` record: the procedure, each rerun's largest
@@ -187,7 +182,7 @@ def measure(run, summary: pd.DataFrame, *, interval: str, perturbations: Sequenc
         for i, p in enumerate(perturbations):
             if progress:
                 progress(f"rerun {i + 1}/{len(perturbations)} ({p.name}: {p.description})")
-            new = rerun(run, p, Path(tmp) / p.name)
+            new = rerun(run, p, Path(tmp) / p.name, generated_dataset)
             diffs = relative_differences(summary, summarize(new.metrics(), interval=interval))
             diffs = diffs[diffs["method"].isin(methods)]
             per_method = diffs.groupby("method")["rel_diff"].max().reindex(methods).fillna(np.inf)

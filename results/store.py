@@ -195,6 +195,16 @@ def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+@dataclass(frozen=True)
+class ResumeState:
+    """What ``Run.prepare_resume`` found: the jobs to keep and the damaged job files to compute again."""
+
+    finished: frozenset[str]
+    """Keys of the jobs whose files are complete and readable."""
+    damaged: dict[str, str]
+    """Job key -> why its file is damaged."""
+
+
 @dataclass
 class Run:
     """One run folder."""
@@ -378,6 +388,33 @@ class Run:
         if problems:
             raise StoreError(f"run {self.id} cannot be {doing}: " + "; ".join(problems)
                              + "; use the plugin files the run was made with (`enginebench runs show` lists them)")
+
+    # -- resuming --------------------------------------------------------------------
+    def prepare_resume(self) -> "ResumeState":
+        """Make the run ready to be finished by this process; every resume check and clean-up is here.
+
+        In order: refuse a damaged run folder and plugin files other than the run's (one
+        StoreError line each, nothing touched); take the write lock (a second writer is
+        refused, naming the holder); remove temporary files of writes cut short by a kill;
+        then list the damaged job files (computed again) and the finished jobs (kept). The
+        lock is held until the run is marked finished or interrupted (``update_info``) or
+        ``unlock`` is called (what a caller does when it fails before that).
+        """
+        why = self.damage()
+        if why is not None:
+            raise StoreError(f"run {self.id} cannot be resumed: {why}, so the run folder is damaged; start a new run "
+                             f"(`enginebench runs rm {self.id}` removes this one)")
+        self.check_plugins("resumed")
+        self.lock()
+        try:
+            for stale in self.jobs_dir.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
+                stale.unlink(missing_ok=True)
+            damaged = self.damaged_jobs()
+            finished = self.finished_jobs(verify=False) - set(damaged)
+        except BaseException:
+            self.unlock()
+            raise
+        return ResumeState(frozenset(finished), damaged)
 
     def job_files(self) -> list[Path]:
         """The job files present under their final names (temporary files excluded), sorted."""
