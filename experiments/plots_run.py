@@ -4,8 +4,9 @@ For each (target, window, split) of the run, every chosen method is fitted again
 that repetition's training trajectories with the hyperparameters the run selected
 (read from the stored job), and a few trajectories of the evaluated part are drawn as in
 seed 003's Figs. 3-6: all methods against the truth (scaled by mean |y| over training),
-the run-time inputs, and the gate weights of the first mixture of experts as stacked
-bands (for a cascade, its downstream MoE, evaluated along the simulated trajectory).
+the run-time inputs, and the mixing weights of the first method that declares them
+(``Method.explain``'s ``"weights"``: a mixture of experts' gate, a cascade's downstream
+gate, evaluated along the simulated trajectory) as stacked bands.
 One measured-vs-predicted scatter per method is written too.
 
 The re-fit draws its random numbers from a generator seeded like the run's job but
@@ -26,7 +27,7 @@ from enginebench.errors import EngineBenchError, MethodError
 from enginebench.experiments.jobs import Job, refit_stored_job, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
-from enginebench.methods.base import Method
+from enginebench.methods.base import EXPLAIN_WEIGHTS, Method
 from enginebench.results.plots import scatter_plot, trajectory_plot
 from enginebench.results.store import Run
 
@@ -37,24 +38,22 @@ class PlotReport:
 
     paths: list[Path] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    bands: dict[Path, str] = field(default_factory=dict)
+    """Trajectory figure -> the method whose mixing weights are drawn as bands under it."""
 
 
 def _safe(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", text).strip("-")
 
 
-def gate_of(method: Method, fitted: Any, data) -> np.ndarray | None:
-    """Gate weights per segment of ``data`` if ``method`` is (or ends in) a mixture of experts, else None."""
-    from enginebench.methods.moe import MoEFitted, gate_weights
+def weights_of(method: Method, fitted: Any, data) -> list[np.ndarray] | None:
+    """The method's mixing weights per segment of ``data`` (its ``explain`` hook's ``"weights"``), or None.
 
-    if isinstance(fitted, MoEFitted):
-        return gate_weights(fitted, data)
-    view = getattr(method, "downstream_view", None)
-    if view is not None:
-        down, down_fitted, down_data = view(fitted, data)
-        if isinstance(down_fitted, MoEFitted):
-            return gate_weights(down_fitted, down_data)
-    return None
+    Declared by the method (a mixture of experts: its gate; a cascade: its downstream's),
+    never recognised here by name or class.
+    """
+    weights = method.explain(fitted, data).get(EXPLAIN_WEIGHTS)
+    return None if weights is None else [np.asarray(w, dtype=float) for w in weights]
 
 
 def plot_run(
@@ -97,7 +96,7 @@ def plot_run(
                 fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
                 preds = method.predict(fitted, shown.without_targets())
                 if gate is None:
-                    gate = gate_of(method, fitted, shown.without_targets())
+                    gate = weights_of(method, fitted, shown.without_targets())
                     gate_label = name if gate is not None else ""
             except (EngineBenchError, ValueError, RuntimeError, FloatingPointError) as exc:
                 report.notes.append(f"{name}: not drawn ({type(exc).__name__}: {exc})")
@@ -114,6 +113,8 @@ def plot_run(
                 seg.t[seg.rows] - seg.t[seg.rows][0], seg.y[:, 0], {m: v[k] for m, v in sims.items()},
                 None if gate is None else gate[k], path, inputs=inputs, scale=scale, title=title, ylabel=target,
             ))
+            if gate_label:
+                report.bands[report.paths[-1]] = gate_label
         for name, values in sims.items():
             path = out / f"{_safe(target)}__w{window:g}__scatter__{_safe(name)}.png"
             report.paths.append(scatter_plot(

@@ -9,7 +9,8 @@ copied, zipped or logged as one artefact:
 - measured vs predicted scatters and time trends of the evaluated part (test by
   default). Predictions are not stored in a run, so they come from re-fitting one
   repetition: a simulation run is redrawn by ``experiments.plots_run.plot_run``
-  (trajectories, with MoE gate bands underneath when a mixture of experts ran); in
+  (trajectories, with gate bands underneath from the first method whose ``explain``
+  hook declares mixing weights, e.g. a mixture of experts); in
   static and window modes each method is fitted again on that repetition's training
   subsample with the hyperparameters the run selected (``refit_predictions``);
 - the learning curve, for a run made by ``enginebench learning-curve``.
@@ -234,15 +235,16 @@ def _simulation_figures(run: Run, out: Path, methods, part: str, repetition: int
 
     drawn = plot_run(run, out, list(methods) if methods else None, trajectories=trajectories, part=part,
                      repetition=repetition)
-    moe = any("moe" in m for m in (methods or run.config().get("methods", {})))
     figures = []
     for path in drawn.paths:
         if "__scatter__" in path.name:
             figures.append(Figure(path, "scatter", f"measured vs simulated, {part} trajectories shown: "
                                                    f"{path.stem.split('__scatter__')[-1]} (repetition {repetition}, re-fitted)"))
         else:
+            banded = drawn.bands.get(path)
             figures.append(Figure(path, "trajectory", f"simulated vs true on a {part} trajectory (repetition {repetition}, "
-                                                      "re-fitted)" + ("; MoE gate weights as bands underneath" if moe else "")))
+                                                      "re-fitted)" + (f"; {banded} gate weights as bands underneath"
+                                                                      if banded else "")))
     return figures, list(drawn.notes)
 
 

@@ -150,7 +150,8 @@ def test_simulation_run_report_draws_trajectories_with_moe_gate_bands(tmp_path):
     assert kinds == {"y__w0__s3.png": "trajectory", "y__w0__scatter__moe.png": "scatter",
                      "y__w0__scatter__nfir.png": "scatter"}
     trajectory = next(f for f in result.figures if f.kind == "trajectory")
-    assert "MoE gate weights as bands" in trajectory.caption and trajectory.caption in result.index.read_text()
+    # the bands come from the method's explain hook and the caption names that method
+    assert "moe gate weights as bands" in trajectory.caption and trajectory.caption in result.index.read_text()
     img = imread(out / "y__w0__s3.png")
     assert img.shape[:2] == (700, 1000)
 

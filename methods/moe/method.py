@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from enginebench.datasets.samples import Samples
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
-from enginebench.methods.moe.explain import describe
+from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.moe.explain import describe, gate_weights
 from enginebench.methods.moe.fitted import MoEFitted
 from enginebench.methods.moe.options import HYPERPARAMETERS, check_options, default_options
 from enginebench.methods.moe.simulation import simulate
@@ -56,3 +56,7 @@ class MoE(Method):
     def describe(self, fitted: MoEFitted) -> dict[str, Any]:
         """Expert count, hyperparameters, local linear systems and the frozen-stability verdict."""
         return describe(fitted)
+
+    def explain(self, fitted: MoEFitted, data: Samples) -> dict[str, list[np.ndarray]]:
+        """The gate as ``weights`` (one (rows, experts) array per segment, along the simulated trajectory)."""
+        return {EXPLAIN_WEIGHTS: gate_weights(fitted, data)}
