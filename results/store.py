@@ -38,6 +38,10 @@ Faults, and what the store does about them:
 * plugin files: a new run records the path and SHA-256 of every plugin file providing
   one of its methods (``plugins`` in run.json); ``Run.check_plugins`` refuses to resume
   or re-fit a run whose plugin files are absent, changed, not loaded, or new.
+
+Resuming is prepared in one place, ``Run.prepare_resume``: the damage and plugin checks,
+the lock, the removal of cut-short temporary files, and the lists of damaged and
+finished jobs, for every plan the runner executes (an experiment, a learning curve).
 """
 
 from __future__ import annotations
