@@ -372,8 +372,8 @@ class NARX(Method):
     name = NAME
     family = "data-driven"
     modes = frozenset({"simulation"})
-    summary = ("kernel NARX: Gaussian KRLS on lagged outputs and inputs (Nystroem for large sets), "
-               "selected and predicted in free run")
+    summary = ("kernel NARX: linear ARX part + Gaussian kernel on lagged outputs and inputs (Nystroem for large "
+               "sets), selected and predicted in free run")
 
     @classmethod
     def default_options(cls) -> dict[str, Any]:
