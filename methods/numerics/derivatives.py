@@ -10,7 +10,7 @@ package solves dense problems whose cost grows like the cube of the length, so a
 signal is cut into overlapping windows whose central parts are stitched back together.
 The LASSO settings (``tol``, ``max_iter``, ``precompute``) and the window layout are
 arguments, so each caller keeps its own numbers (MoE: 128-sample windows, tol 1e-3;
-SINDy: 256-sample chunks with sklearn's default tol, see ``methods/sindy.py``).
+SINDy: 256-sample chunks with sklearn's default tol, see ``methods/sindy_library.py``).
 """
 
 from __future__ import annotations

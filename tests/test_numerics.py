@@ -1,0 +1,116 @@
+"""The shared numerics (methods/numerics/): windowed differentiator, batched fixed-step integrator, device resolver."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from derivative import Kalman, TrendFiltered
+
+from enginebench.errors import DataError, MethodError
+from enginebench.methods.numerics.derivatives import differentiate, segment_derivatives, window_bounds
+from enginebench.methods.numerics.device import resolve_device
+from enginebench.methods.numerics.integrate import hold_after_exit, integrate
+
+
+def test_window_bounds_with_a_longer_first_window_tile_the_signal():
+    for n in (5, 256, 257, 300, 449, 1000, 1153):
+        bounds = window_bounds(n, 256, 32, first_keep=224)
+        kept = np.concatenate([np.arange(a, b) for _, _, a, b in bounds])
+        np.testing.assert_array_equal(kept, np.arange(n))
+        assert all(hi - lo == min(n, 256) and lo <= a and b <= hi for lo, hi, a, b in bounds)
+        # every inner edge keeps the margin: a kept range starts >= 32 after its window unless at 0
+        assert all(a - lo >= 32 or lo == 0 for lo, _, a, _ in bounds)
+        assert all(hi - b >= 32 or hi == n for _, hi, _, b in bounds)
+    assert window_bounds(1000, 256, 32, first_keep=224)[:2] == [(0, 256, 0, 224), (192, 448, 224, 416)]
+    with pytest.raises(DataError, match="first_keep=250 must be in"):
+        window_bounds(1000, 256, 32, first_keep=250)
+
+
+def test_one_window_is_exactly_the_package_estimate_for_both_kinds():
+    rng = np.random.default_rng(0)
+    t = np.arange(90) * 1.0
+    y = np.sin(0.1 * t) + 0.01 * rng.standard_normal(90)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tv_ref = TrendFiltered(order=0, alpha=1e-3, max_iter=20000).d(y, t)
+        kal_ref = Kalman(alpha=1.0).d(y, t)
+        _, tv = differentiate(y, t, 1e-3, tol=1e-4, max_iter=20000, precompute=False)
+    _, kal = differentiate(y, t, 1.0, kind="kalman")
+    np.testing.assert_allclose(tv, tv_ref, rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(kal, kal_ref, rtol=1e-7, atol=1e-10)
+    with pytest.raises(DataError, match="unknown kind 'spline'"):
+        differentiate(y, t, 1.0, kind="spline")
+
+
+def test_segment_derivatives_name_the_failing_segment():
+    t = np.arange(10) * 0.1
+    ok = segment_derivatives([np.sin(t), np.cos(t)], [t, t], 1e-3, where=["seg 'a'", "seg 'b'"])
+    assert [d.shape for d in ok] == [(10,), (10,)]
+    bad_t = np.r_[t[:5], t[5:] + 0.05]
+    with pytest.raises(DataError, match=r"^seg 'b': tv derivative: time is not uniformly sampled"):
+        segment_derivatives([np.sin(t), np.cos(t)], [t, bad_t], 1e-3, where=["seg 'a'", "seg 'b'"])
+
+
+def _decay(x, u):
+    return -x + u
+
+
+@pytest.mark.parametrize("method,inputs", [("rk4", "hold"), ("rk4", "linear"), ("euler", "hold")])
+def test_integrator_matches_the_analytic_solution_in_numpy_and_torch(method, inputs):
+    """dx/dt = -x + u with u = 1 from x0 = 3: x(t) = 1 + 2 e^{-t}; numpy and torch give the same numbers."""
+    h, n = 0.05, 101
+    U = np.ones((2, n, 1))
+    H = np.full((2, n - 1), h)
+    x0 = np.array([[3.0], [3.0]])
+    lo, hi = np.array([-1e9]), np.array([1e9])
+    traj, div = integrate(_decay, x0, U, H, [n, 40], lo, hi, method=method, inputs=inputs)
+    exact = 1 + 2 * np.exp(-np.arange(n) * h)
+    tol = 1e-6 if method == "rk4" else 3e-2
+    np.testing.assert_allclose(traj[0, :, 0], exact, atol=tol)
+    np.testing.assert_array_equal(traj[1, 40:, 0], traj[1, 39, 0])  # past its length a segment is not stepped
+    assert not div.any()
+    as_t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64))  # noqa: E731
+    t_traj, t_div = integrate(_decay, as_t(x0), as_t(U), as_t(H), [n, 40], as_t(lo), as_t(hi), method=method,
+                              inputs=inputs)
+    np.testing.assert_allclose(t_traj.numpy(), traj, rtol=1e-14, atol=1e-14)
+    assert not t_div.any()
+
+
+def test_integrator_flags_and_holds_a_segment_that_leaves_the_envelope():
+    """dx/dt = x from 1 and 0.01: the first leaves [-5, 5] near t = ln 5 and is held at its last inside value;
+    the second stays inside and follows RK4's growth factor."""
+    h, n = 0.1, 40
+    traj, div = integrate(lambda x, u: x, np.array([[1.0], [0.01]]), np.zeros((2, n, 0)), np.full((2, n - 1), h),
+                          [n, n], np.array([-5.0]), np.array([5.0]))
+    np.testing.assert_array_equal(div, [True, False])
+    first_out = int(np.argmax(np.exp(np.arange(n) * h) > 5.0))
+    assert np.all(traj[0, first_out - 1:, 0] == traj[0, first_out - 1, 0]) and traj[0, -1, 0] <= 5.0
+    growth = 1 + h + h**2 / 2 + h**3 / 6 + h**4 / 24  # one RK4 step of dx/dt = x, exactly
+    np.testing.assert_allclose(traj[1, :, 0], 0.01 * growth ** np.arange(n), rtol=1e-12)
+
+
+def test_hold_after_exit_keeps_the_valid_prefix_in_numpy_and_torch():
+    part = np.array([[[1.0], [2.0], [9.0], [3.0]], [[1.0], [1.5], [2.0], [2.5]], [[np.nan], [1.0], [1.0], [1.0]]])
+    start, alive = np.array([[0.5], [0.5], [0.7]]), np.array([True, False, True])
+    got, still = hold_after_exit(part, start, alive, np.array([-5.0]), np.array([5.0]))
+    np.testing.assert_array_equal(got[:, :, 0], [[1, 2, 2, 2], [0.5, 0.5, 0.5, 0.5], [0.7, 0.7, 0.7, 0.7]])
+    np.testing.assert_array_equal(still, [False, False, False])
+    t_got, t_still = hold_after_exit(torch.as_tensor(part), torch.as_tensor(start), torch.as_tensor(alive),
+                                     torch.tensor([-5.0], dtype=torch.float64), torch.tensor([5.0], dtype=torch.float64))
+    np.testing.assert_array_equal(t_got.numpy(), got)
+    np.testing.assert_array_equal(t_still.numpy(), still)
+
+
+def test_device_resolver_names_the_caller():
+    assert resolve_device("cpu", "method 'x'").type == "cpu"
+    assert resolve_device("auto", "method 'x'").type in ("cpu", "cuda")
+    with pytest.raises(MethodError, match=r"^method 'x': device 'tpu' is not supported|^method 'x': unknown device"):
+        resolve_device("tpu", "method 'x'")
+    with pytest.raises(MethodError, match=r"^method 'x': device must be a string"):
+        resolve_device(0, "method 'x'")
+    if not torch.cuda.is_available():
+        with pytest.raises(MethodError, match=r"^method 'x': device 'cuda' requested but CUDA is not available"):
+            resolve_device("cuda", "method 'x'")
