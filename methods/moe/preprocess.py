@@ -23,13 +23,9 @@ class Prepared:
     expert_inputs: list[str]
     derived: tuple[tuple[str, str, int], ...]
     sign: np.ndarray
-    u_mean: np.ndarray
-    u_scale: np.ndarray
-    y_mean: np.ndarray
-    y_scale: np.ndarray
-    d_scale: np.ndarray
-    y_min: np.ndarray
-    y_max: np.ndarray
+    stats: dict[str, np.ndarray]
+    """Training statistics, keyed as ``MoEFitted``'s fields: u_mean, u_scale, y_mean, y_scale, d_scale
+    (the standardised derivative's scale, 1/s), y_min, y_max."""
     Us: list[np.ndarray]
     """Per segment: standardised augmented inputs."""
     Z: list[np.ndarray]
@@ -77,9 +73,10 @@ def prepare(train: Samples, o: Mapping[str, Any]) -> Prepared:
     V = np.hstack([Us[:, si]] + ([Z_all] if o["scheduler_state"] else []))
     X = np.hstack([Z_all, Us[:, ei]] + ([np.ones((len(Z_all), 1))] if o["bias"] else []))
     edges = np.cumsum([len(z) for z in Z])[:-1]
+    stats = dict(u_mean=u_mean, u_scale=u_scale, y_mean=y_mean, y_scale=y_scale, d_scale=d_scale,
+                 y_min=Y_all.min(0), y_max=Y_all.max(0))
     return Prepared(
-        scheduler_inputs=sched_in, expert_inputs=expert_in, derived=derived, sign=sign, u_mean=u_mean,
-        u_scale=u_scale, y_mean=y_mean, y_scale=y_scale, d_scale=d_scale, y_min=Y_all.min(0), y_max=Y_all.max(0),
+        scheduler_inputs=sched_in, expert_inputs=expert_in, derived=derived, sign=sign, stats=stats,
         Us=np.split(Us, edges), Z=Z, T=T, si=si, ei=ei, V=V, X=X, D=dZ_all / d_scale,
     )
 

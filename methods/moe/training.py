@@ -23,7 +23,7 @@ def fit_mixture(train: Samples, params: Mapping[str, Any], o: Mapping[str, Any],
     """Prepare the training samples, start every expert at the least-squares model, train, and pack the result."""
     hp = resolve_params(params)
     p = prepare(train, o)
-    sign, d_scale, V, X = p.sign, p.d_scale, p.V, p.X
+    sign, d_scale, V, X = p.sign, p.stats["d_scale"], p.V, p.X
     margin = margin_matrix(o["max_time_constant"], sign, d_scale, train.target_names)
     device, dtype = resolve_device(o["device"], "method 'moe'"), torch_dtype(o["dtype"])
     gen = torch.Generator().manual_seed(int(rng.integers(0, 2**63 - 1)))
@@ -52,9 +52,7 @@ def fit_mixture(train: Samples, params: Mapping[str, Any], o: Mapping[str, Any],
     probe = V[np.sort(rng.choice(len(V), size=n_probe, replace=False))]
     return MoEFitted(
         params=hp, options=dict(o), input_names=tuple(train.input_names), target_names=tuple(train.target_names),
-        scheduler_inputs=tuple(p.scheduler_inputs), expert_inputs=tuple(p.expert_inputs), sign=sign,
-        u_mean=p.u_mean, u_scale=p.u_scale, y_mean=p.y_mean, y_scale=p.y_scale, d_scale=d_scale,
-        y_min=p.y_min, y_max=p.y_max,
+        scheduler_inputs=tuple(p.scheduler_inputs), expert_inputs=tuple(p.expert_inputs), sign=sign, **p.stats,
         weights={k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()},
         probe=probe, loss_history=history, derived=p.derived, init_info=init_info,
     )
