@@ -45,7 +45,7 @@ from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_positive_option, check_whole_option
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
                                          option_orders, padded_past, training_trajectories)
 
@@ -173,12 +173,8 @@ class ARX(Method):
         self._orders = {key: option_orders(NAME, key, o[key]) for key in ("na", "nb", "nk")}
         if self._orders["nb"] is not None and 0 in self._orders["nb"]:
             raise MethodError(f"method {NAME!r}: option nb={o['nb']!r} must be >= 1 (at least one lag of each input)")
-        m = o["max_order"]
-        if isinstance(m, (bool, np.bool_)) or not isinstance(m, (int, np.integer)) or m < 1:
-            raise MethodError(f"method {NAME!r}: option max_order must be a whole number >= 1, got {m!r}")
-        env = o["envelope"]
-        if isinstance(env, (bool, np.bool_)) or not isinstance(env, (int, float)) or not np.isfinite(env) or env <= 0:
-            raise MethodError(f"method {NAME!r}: option envelope must be a positive number, got {env!r}")
+        check_whole_option(NAME, "max_order", o["max_order"])
+        check_positive_option(NAME, "envelope", o["envelope"])
 
     def search_space(self, data: Samples) -> SearchSpace:
         """Tied order (na = nb) derived from the training data, or na and nb from the options; nk (0, 1) by default."""

@@ -43,6 +43,21 @@ def check_log_grid_option(method: str, key: str, spec: Any) -> tuple[float, floa
     return float(low), float(high), int(num)
 
 
+def check_whole_option(method: str, key: str, value: Any, low: int = 1) -> int:
+    """A whole-number option >= ``low`` (a boolean is not a number); MethodError naming it otherwise."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < low:
+        raise MethodError(f"method {method!r}: option {key} must be a whole number >= {low}, got {value!r}")
+    return int(value)
+
+
+def check_positive_option(method: str, key: str, value: Any) -> float:
+    """A finite positive number option (a boolean is not a number); MethodError naming it otherwise."""
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not np.isfinite(value) or value <= 0):
+        raise MethodError(f"method {method!r}: option {key} must be a positive number, got {value!r}")
+    return float(value)
+
+
 def grid_points(space: SearchSpace) -> list[dict[str, Any]]:
     """Every point of the product grid, in a fixed order (last name varies fastest)."""
     names = list(space)

@@ -75,7 +75,7 @@ from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, log_grid
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, check_positive_option, check_whole_option, log_grid
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
                                          option_orders, training_trajectories)
 from enginebench.methods.kernels import check_positive, gaussian, sq_distances
@@ -414,12 +414,8 @@ class NARX(Method):
         if not isinstance(o["linear"], (bool, np.bool_)):
             raise MethodError(f"method {NAME!r}: option linear must be true or false, got {o['linear']!r}")
         for key, low in (("max_lag", 1), ("kernel_lags", 1), ("exact_max_rows", 1), ("centres", 1), ("max_rows", 0)):
-            v = o[key]
-            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < low:
-                raise MethodError(f"method {NAME!r}: option {key} must be a whole number >= {low}, got {v!r}")
-        env = o["envelope"]
-        if isinstance(env, (bool, np.bool_)) or not isinstance(env, (int, float)) or not np.isfinite(env) or env <= 0:
-            raise MethodError(f"method {NAME!r}: option envelope must be a positive number, got {env!r}")
+            check_whole_option(NAME, key, o[key], low)
+        check_positive_option(NAME, "envelope", o["envelope"])
 
     # -- grid ---------------------------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:

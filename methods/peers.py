@@ -39,7 +39,7 @@ import numpy as np
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_positive_option
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
                                          option_orders, padded_past, training_trajectories)
 
@@ -72,9 +72,7 @@ class PeerMethod(Method):
         if reason:
             raise MethodError(f"method {self.name!r} {reason}")
         super().__init__(**options)
-        env = self.options["envelope"]
-        if isinstance(env, (bool, np.bool_)) or not isinstance(env, (int, float)) or not np.isfinite(env) or env <= 0:
-            raise MethodError(f"method {self.name!r}: option envelope must be a positive number, got {env!r}")
+        check_positive_option(self.name, "envelope", self.options["envelope"])
 
 
 def _summary(package: str, text: str) -> str:
