@@ -130,7 +130,7 @@ def rerun(run, perturbation: Perturbation, folder: Path, generated_dataset: bool
     env = {**os.environ, **perturbation.env}
     if generated_dataset:
         env["ENGINEBENCH_DATA"] = str(folder / "data")
-    proc = subprocess.run([sys.executable, "-c", _RERUN, str(folder / "args.json")], env=env,
+    proc = subprocess.run([sys.executable, "-P", "-c", _RERUN, str(folder / "args.json")], env=env,
                           capture_output=True, text=True)
     if proc.returncode != 0:
         last = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]

@@ -462,7 +462,7 @@ def test_the_marine_baseline_passes_a_run_on_an_emulated_older_cpu(tmp_path):
 
     older = default_perturbations()[1]
     env = {**os.environ, **older.env, "ENGINEBENCH_DATA": str(tmp_path / "data"), "ENGINEBENCH_STORE": str(tmp_path / "runs")}
-    proc = subprocess.run([sys.executable, "-c", "from enginebench.cli.main import main; main()", "run",
+    proc = subprocess.run([sys.executable, "-P", "-c", "from enginebench.cli.main import main; main()", "run",
                            "marine-diesel-egt-quick", "--methods", "naive-mean,pm", "-q", "-j", "1"],
                           env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -515,7 +515,7 @@ def _hold_lock(run: Path) -> None:
 
     code = ("import sys, time\nfrom pathlib import Path\nfrom enginebench.results.store import Run\n"
             "Run(Path(sys.argv[1])).lock()\nprint('locked', flush=True)\ntime.sleep(120)\n")
-    proc = subprocess.Popen([sys.executable, "-c", code, str(run)], stdout=subprocess.PIPE)
+    proc = subprocess.Popen([sys.executable, "-P", "-c", code, str(run)], stdout=subprocess.PIPE)
     assert proc.stdout.readline().strip() == b"locked"
     _HOLDERS.append(proc)
 

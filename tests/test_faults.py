@@ -402,7 +402,7 @@ def test_a_run_being_written_is_locked_against_a_second_writer_until_its_process
         run_experiment(spec, store, workers=1, progress=stop)
     (run,) = store.runs()
     assert run.info()["status"] == "interrupted" and not run.holds_lock()
-    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
+    holder = subprocess.Popen([sys.executable, "-P", "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
     try:
         assert holder.stdout.readline().strip() == b"locked"
         for args in (["run", "--resume", run.id, "-j", "1", "-q"], ["runs", "rm", run.id, "--yes"]):
@@ -427,7 +427,7 @@ def test_a_run_being_written_is_locked_against_a_second_writer_until_its_process
 def test_a_refused_writer_leaves_the_store_as_it_was(finished_run):
     _, run = finished_run
     before = {p: p.read_bytes() for p in run.store.rglob("*") if p.is_file()}
-    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
+    holder = subprocess.Popen([sys.executable, "-P", "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
     try:
         assert holder.stdout.readline().strip() == b"locked"
         with pytest.raises(StoreError, match="being written by another process"):
