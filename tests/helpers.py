@@ -46,6 +46,24 @@ def toy_spec(dataset: str | Path, **changes) -> ExperimentSpec:
     return from_dict(raw, origin="test")
 
 
+def interrupt_after(spec, store, jobs: int = 2, **options):
+    """Run ``spec`` into ``store`` and stop it by an exception once ``jobs`` jobs are written; the interrupted Run."""
+    import pytest
+
+    from enginebench.experiments.runner import run_experiment
+
+    class Stop(Exception):
+        pass
+
+    def stop(done, total, job):
+        if done == jobs:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_experiment(spec, store, progress=stop, **options)
+    return store.runs()[-1]
+
+
 def thread_limits_after_worker_setup(threads: int) -> list[tuple[str, int]]:
     """(library, threads) of every BLAS/OpenMP pool and torch after a worker's thread limit (run in a fresh process)."""
     import torch

@@ -21,7 +21,7 @@ from enginebench.cli.main import cli  # noqa: E402
 from enginebench.experiments import executors  # noqa: E402
 from enginebench.experiments.runner import run_experiment  # noqa: E402
 from enginebench.results.store import RunStore  # noqa: E402
-from helpers import make_toy, toy_spec  # noqa: E402
+from helpers import interrupt_after, make_toy, toy_spec  # noqa: E402
 
 
 def dask_spec(dataset, **changes):
@@ -90,16 +90,7 @@ def test_an_interrupted_dask_run_resumes_on_dask(dataset, reference, tmp_path, s
     spec = dask_spec(dataset)
     store = RunStore(tmp_path / "runs")
 
-    class Stop(Exception):
-        pass
-
-    def stop_after_two(done, total, job):
-        if done == 2:
-            raise Stop
-
-    with pytest.raises(Stop):
-        run_experiment(spec, store, workers=2, executor="dask", scheduler=scheduler, progress=stop_after_two)
-    interrupted = store.runs()[-1]
+    interrupted = interrupt_after(spec, store, workers=2, executor="dask", scheduler=scheduler)
     assert interrupted.info()["status"] == "interrupted"
     before = set(interrupted.finished_jobs())
     assert len(before) == 2

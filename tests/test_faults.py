@@ -31,7 +31,7 @@ from enginebench.errors import StoreError
 from enginebench.experiments.runner import run_experiment
 from enginebench.results import store as store_mod
 from enginebench.results.store import RunStore
-from helpers import toy_spec
+from helpers import interrupt_after, toy_spec
 
 KEY = ["method", "repetition", "split", "metric"]
 
@@ -76,16 +76,7 @@ def test_a_write_cut_short_is_never_read_as_a_job_and_is_removed_on_resume(toy_p
     spec = fault_spec(toy_parquet)
     store = RunStore(tmp_path / "runs")
 
-    class Stop(Exception):
-        pass
-
-    def stop(done, total, job):
-        if done == 2:
-            raise Stop
-
-    with pytest.raises(Stop):
-        run_experiment(spec, store, workers=1, progress=stop)
-    (run,) = store.runs()
+    run = interrupt_after(spec, store, workers=1)
     # what a SIGKILL during the write of the third job leaves behind: a partial temporary file
     partial = run.jobs_dir / ".y__w0__published__krls__r001.parquet.abc123.tmp"
     partial.write_bytes(b"PAR1\x00\x01 half a job")
@@ -391,16 +382,7 @@ def test_a_run_being_written_is_locked_against_a_second_writer_until_its_process
     spec = fault_spec(toy_parquet)
     store = RunStore(tmp_path / "runs")
 
-    class Stop(Exception):
-        pass
-
-    def stop(done, total, job):
-        if done == 2:
-            raise Stop
-
-    with pytest.raises(Stop):
-        run_experiment(spec, store, workers=1, progress=stop)
-    (run,) = store.runs()
+    run = interrupt_after(spec, store, workers=1)
     assert run.info()["status"] == "interrupted" and not run.holds_lock()
     holder = subprocess.Popen([sys.executable, "-P", "-c", HOLD, str(run.path)], stdout=subprocess.PIPE)
     try:

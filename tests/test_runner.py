@@ -11,7 +11,7 @@ import pytest
 from enginebench.experiments.runner import plan, prepare, run_experiment
 from enginebench.experiments.spec import from_dict, load_spec
 from enginebench.results.store import RunStore
-from helpers import toy_spec
+from helpers import interrupt_after, toy_spec
 from enginebench.results.tables import SUMMARY_COLUMNS, summarize, to_csv, to_html, to_latex, to_markdown
 
 
@@ -200,16 +200,7 @@ def test_an_interrupted_run_resumes_to_the_same_metrics(toy_parquet, tmp_path):
     store = RunStore(tmp_path / "runs")
     reference = run_experiment(spec, store, workers=1).run.metrics()
 
-    class Stop(Exception):
-        pass
-
-    def stop_after_two(done, total, job):
-        if done == 2:
-            raise Stop
-
-    with pytest.raises(Stop):
-        run_experiment(spec, store, workers=1, progress=stop_after_two)
-    interrupted = store.runs()[-1]
+    interrupted = interrupt_after(spec, store, workers=1)
     assert interrupted.info()["status"] == "interrupted" and len(interrupted.finished_jobs()) == 2
     before = {k: (interrupted.jobs_dir / f"{k}.parquet").stat().st_mtime_ns for k in interrupted.finished_jobs()}
     seen = []
