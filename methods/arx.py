@@ -47,7 +47,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_positive_option, check_whole_option
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
-                                         option_orders, padded_past, training_trajectories)
+                                         order_options, padded_past, training_trajectories)
 
 NAME = "arx"
 DEFAULT_NK = (0, 1)
@@ -170,9 +170,7 @@ class ARX(Method):
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         o = self.options
-        self._orders = {key: option_orders(NAME, key, o[key]) for key in ("na", "nb", "nk")}
-        if self._orders["nb"] is not None and 0 in self._orders["nb"]:
-            raise MethodError(f"method {NAME!r}: option nb={o['nb']!r} must be >= 1 (at least one lag of each input)")
+        self._orders = order_options(NAME, o)
         check_whole_option(NAME, "max_order", o["max_order"])
         check_positive_option(NAME, "envelope", o["envelope"])
 

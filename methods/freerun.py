@@ -133,6 +133,14 @@ class Envelope:
         return traj, True
 
 
+def order_options(who: str, options: dict) -> dict[str, list[int] | None]:
+    """The ``na``, ``nb``, ``nk`` options checked (``option_orders`` each); nb must not hold 0 (one lag per input)."""
+    orders = {key: option_orders(who, key, options[key]) for key in ("na", "nb", "nk")}
+    if orders["nb"] is not None and 0 in orders["nb"]:
+        raise MethodError(f"method {who!r}: option nb={options['nb']!r} must be >= 1 (at least one lag of each input)")
+    return orders
+
+
 def option_orders(who: str, key: str, value: object) -> list[int] | None:
     """An order option: None (derived from the data), one whole number >= 0, or a list of them."""
     if value is None:

@@ -77,7 +77,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, check_positive_option, check_whole_option, log_grid
 from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
-                                         option_orders, training_trajectories)
+                                         order_options, training_trajectories)
 from enginebench.methods.kernels import check_positive, gaussian, sq_distances
 
 NAME = "narx"
@@ -403,9 +403,7 @@ class NARX(Method):
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         o = self.options
-        self._orders = {key: option_orders(NAME, key, o[key]) for key in ("na", "nb", "nk")}
-        if self._orders["nb"] is not None and 0 in self._orders["nb"]:
-            raise MethodError(f"method {NAME!r}: option nb={o['nb']!r} must be >= 1 (at least one lag of each input)")
+        self._orders = order_options(NAME, o)
         if self._orders["na"] is not None and 0 in self._orders["na"]:
             raise MethodError(f"method {NAME!r}: option na={o['na']!r} must be >= 1 (a NARX feeds back its output; "
                               "use nfir for a model of inputs only)")
