@@ -14,7 +14,7 @@ from enginebench.errors import MethodError
 from enginebench.methods import peers
 from enginebench.methods.peers import INSTALL, N4SID, SysIdentPyNARX, initial_state, simulate_state_space
 from enginebench.testing import check_method
-from test_arx import linear_raw, sim_samples
+from helpers import linear_raw, sim_samples
 
 HAVE_SYSIDENTPY = importlib.util.find_spec("sysidentpy") is not None
 HAVE_NFOURSID = importlib.util.find_spec("nfoursid") is not None

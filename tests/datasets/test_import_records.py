@@ -19,8 +19,8 @@ from enginebench.datasets.importer import import_table, load_spec
 from enginebench.datasets.io import read_dataset
 from enginebench.errors import DataError, SpecError
 
-WIDE = Path(__file__).parent / "data" / "wide"
-SHARED_DATA = Path(os.environ.get("ENGINEBENCH_SHARED", Path(__file__).resolve().parents[1].parent / "shared")) / "data"
+WIDE = Path(__file__).resolve().parents[1] / "data" / "wide"
+SHARED_DATA = Path(os.environ.get("ENGINEBENCH_SHARED", Path(__file__).resolve().parents[2].parent / "shared")) / "data"
 
 COLUMNS = '[columns]\nu = { role = "input", unit = "V" }\ny = { role = "output", unit = "V" }\n'
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "enginebench-example-plugin"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "enginebench-example-plugin"
 CLI = [sys.executable, "-c", "from enginebench.cli.main import main; main()"]
 
 

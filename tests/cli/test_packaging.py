@@ -19,7 +19,7 @@ FORBIDDEN_TOP_LEVEL = {"datasets", "methods", "results", "cli", "experiments", "
 def test_the_wheel_puts_everything_under_enginebench(tmp_path):
     """Build the wheel from this checkout: every module sits below enginebench/."""
     pytest.importorskip("setuptools")
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(root)],
                    check=True, capture_output=True)
     (wheel,) = tmp_path.glob("enginebench-*.whl")

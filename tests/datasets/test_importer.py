@@ -23,7 +23,7 @@ from enginebench.datasets.schema import Schema
 from enginebench.datasets.validate import validate_frame
 from enginebench.errors import DataError, EngineBenchError, SpecError
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 MALFORMED = DATA / "malformed"
 GOOD = DATA / "good"
 

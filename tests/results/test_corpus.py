@@ -36,7 +36,7 @@ from click.testing import CliRunner
 from enginebench.cli.main import cli
 from enginebench.methods import registry
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 MALFORMED = DATA / "malformed"
 VALID_MALFORMED = {"gap_split", "short_segment_dropped"}
 """Folders of the malformed corpus that import fine (they test splitting and dropping)."""

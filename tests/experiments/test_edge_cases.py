@@ -3,12 +3,12 @@
 Covered elsewhere and not repeated here:
 
 * a SINDy fit that blows up is flagged ``diverged`` and held inside its envelope:
-  ``tests/test_sindy.py::test_unstable_fit_diverges_and_is_counted`` and
+  ``tests/methods/test_sindy.py::test_unstable_fit_diverges_and_is_counted`` and
   ``::test_non_finite_step_is_flagged_and_held``;
-* an unstable MoE is flagged ``diverged``: ``tests/test_moe.py::test_unstable_model_is_flagged_diverged``;
+* an unstable MoE is flagged ``diverged``: ``tests/methods/test_moe.py::test_unstable_model_is_flagged_diverged``;
 * KRLS on exactly duplicated rows at lambda = 1e-4 agrees with a reference solve:
-  ``tests/test_krls.py::test_duplicate_rows_and_tiny_lambda_stay_finite``;
-* the MAPE refusal and PPMCC nan of the metric functions: ``tests/test_metrics.py``.
+  ``tests/methods/test_krls.py::test_duplicate_rows_and_tiny_lambda_stay_finite``;
+* the MAPE refusal and PPMCC nan of the metric functions: ``tests/results/test_metrics.py``.
 
 Here the same situations are pushed further (contradictory duplicates, lambda down to
 1e-14, all-equal rows) and followed through a whole run into the stored jobs and tables.

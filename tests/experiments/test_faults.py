@@ -1,6 +1,6 @@
 """Faults of the machine and the store: each is detected, reported in one line, and loses no finished job.
 
-* the process killed mid-run (SIGKILL): ``tests/test_runner.py::test_killed_process_resumes_from_the_command_line``
+* the process killed mid-run (SIGKILL): ``tests/experiments/test_runner.py::test_killed_process_resumes_from_the_command_line``
   (finished jobs readable, ``--resume`` completes); here: a write cut short leaves only a
   hidden temporary file that is never read as a job and is removed on resume;
 * the disk full while writing a result: the run stops with an error naming the store and

@@ -24,7 +24,7 @@ from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, SegmentPredictions
 from enginebench.methods.cascade import Cascade
 from enginebench.results import tables
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NF = {"horizon": 2.0, "stride": 2, "gamma": 0.5, "lambda": 1e-2}
 
 

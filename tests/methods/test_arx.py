@@ -6,42 +6,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import pandas as pd
 import pytest
 import scipy.signal
 
-from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import RawSegments, SamplePool, Samples
-from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.methods.arx import ARX, ARXFit, simulate
 from enginebench.methods.base import SegmentPredictions, grid_points
 from enginebench.methods.freerun import Envelope
 from enginebench.testing import check_method
-
-A_TRUE = np.array([1.0, -1.5, 0.7])          # A(q) = 1 - 1.5 q^-1 + 0.7 q^-2, poles 0.75 +- 0.37j
-B1_TRUE = np.array([0.0, 0.5, 0.3])          # q^-1 (0.5 + 0.3 q^-1)
-B2_TRUE = np.array([0.0, -0.2, 0.1])
-OFFSET = 0.4
-
-
-def linear_raw(n_seg: int = 3, n: int = 300, seed: int = 0) -> RawSegments:
-    """Segments of A(q) y = B1(q) u1 + B2(q) u2 + OFFSET started at rest, noise-free."""
-    rng = np.random.default_rng(seed)
-    frames = []
-    for k in range(n_seg):
-        u1, u2 = rng.normal(size=n), rng.uniform(-1, 1, n)
-        y = scipy.signal.lfilter(B1_TRUE, A_TRUE, u1) + scipy.signal.lfilter(B2_TRUE, A_TRUE, u2) \
-            + scipy.signal.lfilter([OFFSET], A_TRUE, np.ones(n))
-        frames.append(pd.DataFrame({"segment": f"s{k}", "time": np.arange(n) + 1000.0 * k, "u1": u1, "u2": u2, "y": y}))
-    ds = Dataset("linear", pd.concat(frames, ignore_index=True),
-                 Schema.from_roles({"u1": "input", "u2": "input", "y": "output"}), 1.0)
-    return RawSegments.from_dataset(ds)
-
-
-def sim_samples(raw: RawSegments, init_samples: int = 0) -> Samples:
-    return SamplePool(raw, ["y"], "simulation", init_samples=init_samples).materialize()
-
+from helpers import A_TRUE, B1_TRUE, B2_TRUE, OFFSET, linear_raw, sim_samples
 
 PARAMS = {"na": 2, "nb": 2, "nk": 1}
 

@@ -14,7 +14,7 @@ from enginebench.errors import MethodError
 from enginebench.methods.base import Method, SegmentPredictions
 from enginebench.testing import check_method
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "enginebench-example-plugin"
 
 

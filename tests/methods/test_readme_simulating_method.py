@@ -21,7 +21,7 @@ from enginebench.methods.registry import load_plugin_file
 from enginebench.results.store import RunStore
 from enginebench.testing import check_method
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[2] / "README.md"
 
 
 def readme_example() -> str:
