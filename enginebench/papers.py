@@ -19,12 +19,15 @@ class Paper:
     legacy: str
     title: str
     uses: str
+    method_order: tuple[str, ...] = ()
+    """The rows of the paper's result tables, in its order (``layout --paper``); other methods follow."""
 
 
 PAPERS: dict[str, Paper] = {p.name: p for p in (
     Paper("egt-hybrid", "seed 000",
           "Physical, data-driven and hybrid approaches to model engine exhaust gas temperatures in operational conditions",
-          "the marine-diesel case: PM, KRLS and MTL-KRLS, Table 4 (FAT calibration), Tables 8-9 (layout)"),
+          "the marine-diesel case: PM, KRLS and MTL-KRLS, Table 4 (FAT calibration), Tables 8-9 (layout)",
+          ("naive-mean", "pm", "krls", "mtl-krls")),
     Paper("hil-diesel", "seed 001",
           "Modeling and validation of a diesel engine with turbocharger for hardware-in-the-loop applications",
           "the block structure of the synthetic marine 'true engine' and its weighted least-squares tuning"),
@@ -33,7 +36,8 @@ PAPERS: dict[str, Paper] = {p.name: p for p in (
           "implementation on a target platform",
           "the speed/accuracy trade-off of fast-running models and their 5 % tolerances"),
     Paper("turboshaft-moe", "seed 003", "Helicopter turboshaft modeling via mixtures of experts",
-          "the turboshaft case: MoE, SINDy, NFIR and cascades, Tables 2-3 (layout)"),
+          "the turboshaft case: MoE, SINDy, NFIR and cascades, Tables 2-3 (layout)",
+          ("nfir", "moe", "sindy", "moe[ideal]", "sindy[ideal]", "moe-nfir", "sindy-nfir", "moe-moe")),
 )}
 
 LAYOUT_PAPERS = ("turboshaft-moe", "egt-hybrid")

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import DataError
+from enginebench.papers import PAPERS
 from enginebench.results.stats import paired_pvalues, t_interval
 
 PUBLISHED = Path(__file__).resolve().parent / "published"
@@ -29,7 +30,7 @@ LEGACY_FILES = {"literature-seed000.csv": "literature-egt-hybrid.csv",
 """Old literature file names (papers named by seed number) -> the shipped files."""
 LITERATURE = "literature (confidential data; not comparable)"
 THIS_RUN = "this run"
-TURBOSHAFT_MOE_ORDER = ("nfir", "moe", "sindy", "moe[ideal]", "sindy[ideal]", "moe-nfir", "sindy-nfir", "moe-moe")
+TURBOSHAFT_MOE_ORDER = PAPERS["turboshaft-moe"].method_order
 TURBOSHAFT_MOE_METRICS = {"rmae": "mean", "rmae_seg_sd": "sd", "rmae_seg_median": "median", "rmae_seg_iqr": "iqr"}
 TURBOSHAFT_MOE_SPLITS = {"validation": "val", "test": "test"}
 TURBOSHAFT_MOE_COLUMNS = (
@@ -227,7 +228,7 @@ def egt_hybrid_table(metrics: pd.DataFrame, literature: bool = True, split: str 
         block = ok[ok["target"] == target]
         for window in sorted(block["window"].unique()):
             wblock = block[block["window"] == window]
-            for method in _method_order(wblock["method"].unique(), ("naive-mean", "pm", "krls", "mtl-krls")):
+            for method in _method_order(wblock["method"].unique(), PAPERS["egt-hybrid"].method_order):
                 mrows = wblock[wblock["method"] == method]
                 row = {"target": target, "window": float(window), "method": method, "source": THIS_RUN,
                        "n_repeats": int(mrows["repetition"].nunique())}
