@@ -75,6 +75,9 @@ DEFAULT_STORE = "enginebench-runs"
 JOB_META_KEY = b"enginebench.job"
 LOCK_FILE = "run.lock"
 """The lock file of a run folder (see ``Run.lock``)."""
+SELECTION_COLUMNS = {"target": object, "window": float, "split": object, "method": object, "repetition": "int64",
+                     "point": "int64", "resample": "int64", "score": float, "criterion": object, "chosen": bool}
+"""The fixed columns of ``Run.selection_table`` (the ``param:<name>`` columns come after ``point``)."""
 REQUIRED_FILES = ("run.json", "config.toml", "environment.json")
 """The files every run folder needs; a run missing one is damaged."""
 
@@ -524,6 +527,15 @@ class Run:
                 key = (method, str(text))
                 out["warnings"][key] = out["warnings"].get(key, 0) + 1
         return out
+
+    def selection_table(self, job_key: str | None = None) -> pd.DataFrame:
+        """The model-selection scores of the run's jobs (one job's with ``job_key``), one row per grid point and resample.
+
+        Columns: ``SELECTION_COLUMNS`` with one ``param:<name>`` column per hyperparameter
+        after ``point``. An empty frame with the fixed columns when the run stored none
+        (methods with nothing to select, runs made before tables were stored).
+        """
+        return pd.DataFrame({c: pd.Series(dtype=t) for c, t in SELECTION_COLUMNS.items()})
 
     def metrics(self) -> pd.DataFrame:
         """All metric rows of all finished jobs (one long frame); a damaged job file is refused by name."""
