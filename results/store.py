@@ -4,7 +4,7 @@ Layout::
 
     enginebench-runs/                   (--store, $ENGINEBENCH_STORE)
       <run-id>/
-        run.json                        id, name, status, config hash, job count, times
+        run.json                        id, name, status, config hash, job count, times, tags
         config.toml                     the resolved experiment
         environment.json                package versions, git commit, CPU/GPU, seeds
         jobs/<job-key>.parquet          metric rows of one finished job; params,
@@ -202,6 +202,18 @@ def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+def _wall_time(before: dict[str, Any], changes: dict[str, Any], now_ns: int) -> dict[str, Any]:
+    """What a status change adds to run.json: ``started_ns`` when the run is marked running (a new session), and
+    the session's seconds added to ``wall_s`` when a running run gets another status."""
+    status = changes.get("status")
+    if status == "running":
+        return {"started_ns": now_ns}
+    start = before.get("started_ns", before.get("created_ns"))
+    if status is None or before.get("status") != "running" or not isinstance(start, int):
+        return {}
+    return {"wall_s": round(float(before.get("wall_s") or 0.0) + (now_ns - start) / 1e9, 3)}
+
+
 @dataclass(frozen=True)
 class ResumeState:
     """What ``Run.prepare_resume`` found: the jobs to keep and the damaged job files to compute again."""
@@ -272,12 +284,18 @@ class Run:
         return self._read_object("run.json")
 
     def update_info(self, **changes: Any) -> None:
-        """Change run.json under the run's lock; the lock is kept while the status is running, else released."""
+        """Change run.json under the run's lock; the lock is kept while the status is running, else released.
+
+        A status change also keeps ``wall_s``, the seconds the run has spent running over
+        all its sessions (a session starts at creation or ``status="running"`` and ends
+        at any other status; a session cut short by a kill is not counted).
+        """
         held = self.holds_lock()
         self.lock()
         keep = held
         try:
-            info = {**self.info(), **changes}
+            before = self.info()
+            info = {**before, **changes, **_wall_time(before, changes, time.time_ns())}
             keep = info.get("status") == "running"
             self._write(self.path / "run.json", json.dumps(_jsonable(info), indent=2).encode(), "the run's status file")
         finally:
@@ -600,13 +618,14 @@ class RunStore:
         raise StoreError(f"cannot create a run folder under {self.root}: {base} and 10000 variants are taken")
 
     def create(self, name: str, config: dict[str, Any], config_hash: str, environment: dict[str, Any], n_jobs: int,
-               plugins: list[dict[str, Any]] | None = None) -> Run:
+               plugins: list[dict[str, Any]] | None = None, tags: dict[str, str] | None = None) -> Run:
         """A new run folder with its config, environment and run.json (status running), locked by this process.
 
         run.json is written last: until it exists the folder is not a run (``runs`` skips
         it), and a failed write removes the folder again. ``plugins`` (path, sha256,
         methods of each plugin file) defaults to the plugin files this process loaded for
-        the config's methods (``methods.registry.plugin_records``).
+        the config's methods (``methods.registry.plugin_records``). ``tags`` (KEY -> VALUE,
+        checked by ``results.catalog.check_tags``) label the run; they are not part of the config.
         """
         if plugins is None:
             from enginebench.methods.registry import plugin_records
@@ -628,7 +647,7 @@ class RunStore:
             run._write(path / "run.json", json.dumps({
                 "id": run.id, "name": name, "status": "running", "config_hash": config_hash, "n_jobs": n_jobs,
                 "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(created_ns / 1e9)),
-                "created_ns": created_ns, "pid": os.getpid(), "plugins": plugins,
+                "created_ns": created_ns, "pid": os.getpid(), "plugins": plugins, "tags": dict(tags or {}),
             }, indent=2).encode(), "the run's status file")
         except BaseException:
             run.unlock()
