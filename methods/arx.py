@@ -45,9 +45,10 @@ from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_positive_option, check_whole_option
-from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
-                                         order_options, padded_past, training_trajectories)
+from enginebench.declare import Declaration, whole
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
+                                         derived_orders, init_window, orders, padded_past, training_trajectories)
 
 NAME = "arx"
 DEFAULT_NK = (0, 1)
@@ -157,22 +158,19 @@ class ARX(Method):
     modes = frozenset({"simulation"})
     summary = "linear ARX (order, delay searched), least squares, simulated in free run from the init window"
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "na": None,  # output lags: None = derived grid, a number, or a list
-            "nb": None,  # input lags per input (>= 1)
-            "nk": None,  # input delay in samples: None = (0, 1)
-            "max_order": 128,  # cap of the derived order grid
-            "envelope": 10.0,  # divergence: leaving [min - e span, max + e span] of the training outputs
-        }
+    declared_options = Declaration(
+        orders("na", None, "output lags: None = tied to nb on the derived order grid", searches=("na", "order"),
+               edges="high"),
+        orders("nb", None, "input lags per input: None = tied to na on the derived order grid", low=1,
+               why="at least one lag of each input", searches=("nb", "order"), edges="high"),
+        orders("nk", None, "input delay: None = searched over (0, 1)", searches=("nk",), edges="high"),
+        whole("max_order", 128, "cap of the derived order grid", low=1, unit="samples"),
+        ENVELOPE,
+    )
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
-        o = self.options
-        self._orders = order_options(NAME, o)
-        check_whole_option(NAME, "max_order", o["max_order"])
-        check_positive_option(NAME, "envelope", o["envelope"])
+        self._orders = {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
 
     def search_space(self, data: Samples) -> SearchSpace:
         """Tied order (na = nb) derived from the training data, or na and nb from the options; nk (0, 1) by default."""

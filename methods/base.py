@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
 from enginebench.datasets.samples import Samples
+from enginebench.declare import Declaration, anything
+from enginebench.declare import log_grid as declared_log_grid
 from enginebench.errors import MethodError
 
 FAMILIES = ("physical", "data-driven", "hybrid", "baseline")
@@ -28,34 +31,13 @@ def log_grid(low_exp: float, high_exp: float, num: int) -> np.ndarray:
 
 
 def check_log_grid_option(method: str, key: str, spec: Any) -> tuple[float, float, int]:
-    """Validate a (low exponent, high exponent, count) grid option; MethodError naming it otherwise."""
-    try:
-        low, high, num = spec
-        ok = (not any(isinstance(v, (bool, np.bool_)) for v in (low, high, num))  # true is not a number
-              and bool(np.isfinite([low, high]).all()) and float(num) == int(num) and int(num) >= 1)
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise MethodError(
-            f"method {method!r}: option {key}={spec!r} must be (low exponent, high exponent, count) "
-            f"with a count >= 1, e.g. (-4, 4, 41) for 10^-4 ... 10^4"
-        )
+    """Validate a (low exponent, high exponent, count) grid option; MethodError naming it otherwise.
+
+    A thin wrapper over the declaration's ``log_grid`` kind, kept for plugins that check by hand.
+    """
+    Declaration(declared_log_grid(key, spec, "")).validate({key: spec}, f"method {method!r}", MethodError, fill=False)
+    low, high, num = spec
     return float(low), float(high), int(num)
-
-
-def check_whole_option(method: str, key: str, value: Any, low: int = 1) -> int:
-    """A whole-number option >= ``low`` (a boolean is not a number); MethodError naming it otherwise."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < low:
-        raise MethodError(f"method {method!r}: option {key} must be a whole number >= {low}, got {value!r}")
-    return int(value)
-
-
-def check_positive_option(method: str, key: str, value: Any) -> float:
-    """A finite positive number option (a boolean is not a number); MethodError naming it otherwise."""
-    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating))
-            or not np.isfinite(value) or value <= 0):
-        raise MethodError(f"method {method!r}: option {key} must be a positive number, got {value!r}")
-    return float(value)
 
 
 def grid_points(space: SearchSpace) -> list[dict[str, Any]]:
@@ -70,7 +52,11 @@ class Method:
     Subclasses set ``name``, ``family`` and ``modes`` and implement ``fit`` and
     ``predict``. ``fit`` sees training samples with targets; ``predict`` sees samples
     whose targets were removed, so a method cannot peek at what it must predict.
-    Options that are not searched (switches, fixed settings) are constructor keywords.
+    Options that are not searched (switches, fixed settings) are constructor keywords,
+    declared once in ``declared_options`` (kind, default, unit, one-line meaning: see
+    ``enginebench/declare.py``); ``default_options`` and the constructor's checks come from
+    it. A plugin may instead override ``default_options`` alone: its options are then
+    undeclared (any value, no meaning).
     """
 
     name: ClassVar[str] = ""
@@ -81,18 +67,39 @@ class Method:
     """True for the method results tables measure skill against (``results.tables.BASELINE``
     names it: the training mean, family "baseline"); exactly one registered method declares it."""
 
+    declared_options: ClassVar[Declaration] = Declaration()
+    """Every constructor option: default, kind, accepted values, unit and meaning."""
+
     def __init__(self, **options: Any) -> None:
-        unknown = set(options) - set(self.default_options())
-        if unknown:
-            raise MethodError(
-                f"method {self.name!r}: unknown option(s) {', '.join(sorted(unknown))}; "
-                f"known: {', '.join(sorted(self.default_options())) or 'none'}"
-            )
-        self.options = {**self.default_options(), **options}
+        self.options = self.option_declaration().validate(options, f"method {self.name!r}", MethodError)
 
     @classmethod
     def default_options(cls) -> dict[str, Any]:
-        return {}
+        """Every option with its default (from ``declared_options``)."""
+        return cls.declared_options.defaults()
+
+    @classmethod
+    def option_declaration(cls) -> Declaration:
+        """The options as checked and shown: ``declared_options`` with the keys and defaults of
+        ``default_options()`` (a key only ``default_options`` names is undeclared: any value, no meaning)."""
+        declared = cls.declared_options
+        defaults = cls.default_options()
+        fields = []
+        for key, value in defaults.items():
+            if key not in declared:
+                fields.append(anything(key, value))
+            elif declared[key].default is value:
+                fields.append(declared[key])
+            else:
+                fields.append(replace(declared[key], default=value))
+        return Declaration(*fields)
+
+    @classmethod
+    def grid_edges(cls) -> dict[str, str]:
+        """Searched hyperparameter -> at which edges of its grid a selected value deserves a warning:
+        "both", "low", "high" or "none" (from the options that set each grid; a hyperparameter not
+        listed has no declaring option, e.g. a fixed search space)."""
+        return cls.option_declaration().edges()
 
     def search_space(self, data: Samples) -> SearchSpace:
         """Candidate hyperparameters; an empty space means nothing to select."""

@@ -44,11 +44,51 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from enginebench.datasets.samples import Samples
+from enginebench.declare import Declaration, Invalid, anything, choice, number, table, text
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, grid_points
 
 SOURCES = ("model", "true")
 TRAIN_ON = ("model", "true")
+
+
+def _names(value: Any) -> Any:
+    """A column name or a list of distinct names."""
+    names = [value] if isinstance(value, str) else value
+    if not isinstance(names, (list, tuple)) or not names or not all(isinstance(n, str) and n for n in names) \
+            or len(set(names)) != len(names):
+        raise Invalid("{name}={value} must be a column name or a list of distinct column names")
+    return value
+
+
+def _distinct(value: Any) -> Any:
+    if isinstance(value, str) or not isinstance(value, (list, tuple)) \
+            or not all(isinstance(n, str) and n for n in value) or len(set(value)) != len(value):
+        raise Invalid("{name}={value} must be a list of distinct column names, none of them an intermediate")
+    return value
+
+
+OPTIONS = Declaration(
+    text("upstream", "nfir", "method of the intermediate(s): nfir, moe, sindy or any registered simulating method"),
+    text("downstream", "moe", "method of the target: moe, sindy, nfir or any registered simulating method"),
+    anything("intermediate", "WF", "intermediate column, or a list of them (one upstream model each)", check=_names,
+             type_label="str | list[str]"),
+    choice("source", "model", "fed to the downstream: the upstream's simulated intermediate (model) or the "
+           "measured one (true: an ideal baseline, needs role input)", SOURCES),
+    choice("train_on", "model", "what the downstream is trained on when source = model", TRAIN_ON),
+    table("upstream_options", {}, "options of the upstream method"),
+    table("downstream_options", {}, "options of the downstream method"),
+    table("upstream_params", {}, "fixed upstream hyperparameters; the rest are tuned on the holdout"),
+    table("downstream_params", {}, "fixed downstream hyperparameters (removed from the search)"),
+    number("upstream_holdout", 0.25, "fraction of training trajectories that tune the upstream", low=0, high=1,
+           low_open=True, high_open=True, message="{name} must lie strictly between 0 and 1, got {value}"),
+    choice("intermediate_sign", "+", "moe downstream: sign of the intermediate's coefficient", ("+", "-", "free")),
+    anything("surrogates", [], "internal columns (e.g. NG) reconstructed by NFIR and fed to upstream and "
+             "downstream", check=_distinct, type_label="list[str]"),
+    table("surrogate_options", {}, "options of the surrogates' NFIR"),
+    table("surrogate_params", {}, "fixed NFIR hyperparameters of the surrogates; the rest are tuned on the holdout"),
+)
+"""The cascade's options; each preset class (``moe-nfir``...) changes some defaults."""
 
 
 def component_class(name: str) -> type[Method]:
@@ -171,54 +211,25 @@ class Cascade(Method):
     summary = "cascade: an upstream model of an intermediate (e.g. WF) feeds a downstream model of the target (seed 003)"
     preset: ClassVar[dict[str, Any]] = {}
 
+    declared_options = OPTIONS
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.declared_options = OPTIONS.with_defaults(**cls.preset)
+
     @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "upstream": "nfir",  # nfir | moe | sindy (or any registered method)
-            "downstream": "moe",  # moe | sindy | nfir
-            "intermediate": "WF",  # column name, or a list of names (one upstream model each)
-            "source": "model",  # "model": upstream's prediction; "true": measured (ideal; needs role input)
-            "train_on": "model",  # what the downstream is trained on when source = "model"
-            "upstream_options": {},
-            "downstream_options": {},
-            "upstream_params": {},  # fixed upstream hyperparameters; the rest are tuned on the holdout
-            "downstream_params": {},  # fixed downstream hyperparameters (removed from the search)
-            "upstream_holdout": 0.25,  # fraction of training trajectories that tune the upstream
-            "intermediate_sign": "+",  # moe downstream: sign of the intermediate's coefficient ("+", "-", "free")
-            "surrogates": [],  # internal columns (e.g. NG) reconstructed by NFIR and fed to upstream and downstream
-            "surrogate_options": {},
-            "surrogate_params": {},  # fixed NFIR hyperparameters of the surrogates; the rest are tuned on the holdout
-            **cls.preset,
-        }
+    def grid_edges(cls) -> dict[str, str]:
+        """The default downstream's (the cascade searches the downstream's space)."""
+        return component_class(cls.default_options()["downstream"]).grid_edges()
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         o = self.options
-        if o["source"] not in SOURCES:
-            raise MethodError(f"method {self.name!r}: option source={o['source']!r}; use 'model' (upstream's simulated "
-                              "intermediate) or 'true' (measured; ideal, not available at run time)")
-        if o["train_on"] not in TRAIN_ON:
-            raise MethodError(f"method {self.name!r}: option train_on={o['train_on']!r}; use 'model' or 'true'")
-        names = [o["intermediate"]] if isinstance(o["intermediate"], str) else list(o["intermediate"])
-        if not names or not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names):
-            raise MethodError(f"method {self.name!r}: option intermediate={o['intermediate']!r} must be a column name "
-                              "or a list of distinct column names")
-        self.intermediates = tuple(names)
-        surrogates = o["surrogates"]
-        if isinstance(surrogates, str) or not all(isinstance(n, str) and n for n in surrogates) \
-                or set(surrogates) & set(names) or len(set(surrogates)) != len(surrogates):
-            raise MethodError(f"method {self.name!r}: option surrogates={surrogates!r} must be a list of distinct column "
-                              "names, none of them an intermediate")
-        self.surrogates = tuple(surrogates)
-        for key in ("upstream_options", "downstream_options", "upstream_params", "downstream_params",
-                    "surrogate_options", "surrogate_params"):
-            if not isinstance(o[key], Mapping):
-                raise MethodError(f"method {self.name!r}: option {key} must be a table of name = value, got {o[key]!r}")
-        h = o["upstream_holdout"]
-        if not (isinstance(h, (int, float)) and 0 < h < 1):
-            raise MethodError(f"method {self.name!r}: option upstream_holdout must lie strictly between 0 and 1, got {h!r}")
-        if o["intermediate_sign"] not in ("+", "-", "free"):
-            raise MethodError(f"method {self.name!r}: option intermediate_sign={o['intermediate_sign']!r}; use '+', '-' or 'free'")
+        self.intermediates = tuple([o["intermediate"]] if isinstance(o["intermediate"], str) else o["intermediate"])
+        if set(o["surrogates"]) & set(self.intermediates):
+            raise MethodError(f"method {self.name!r}: option surrogates={o['surrogates']!r} must be a list of distinct "
+                              "column names, none of them an intermediate")
+        self.surrogates = tuple(o["surrogates"])
         self.up_cls = component_class(o["upstream"]) if o["source"] == "model" else None
         self.down_cls = component_class(o["downstream"])
         for role, cls in (("upstream", self.up_cls), ("downstream", self.down_cls)):

@@ -25,6 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from enginebench.datasets.samples import Samples, SegmentSamples
+from enginebench.declare import Field, Invalid, is_number, positive
 from enginebench.errors import MethodError
 
 
@@ -133,25 +134,40 @@ class Envelope:
         return traj, True
 
 
-def order_options(who: str, options: dict) -> dict[str, list[int] | None]:
-    """The ``na``, ``nb``, ``nk`` options checked (``option_orders`` each); nb must not hold 0 (one lag per input)."""
-    orders = {key: option_orders(who, key, options[key]) for key in ("na", "nb", "nk")}
-    if orders["nb"] is not None and 0 in orders["nb"]:
-        raise MethodError(f"method {who!r}: option nb={options['nb']!r} must be >= 1 (at least one lag of each input)")
-    return orders
-
-
-def option_orders(who: str, key: str, value: object) -> list[int] | None:
-    """An order option: None (derived from the data), one whole number >= 0, or a list of them."""
+def as_orders(value: object) -> list[int] | None:
+    """An order option as sorted distinct whole numbers (None stays None: derived from the data)."""
     if value is None:
         return None
     values = list(value) if isinstance(value, (list, tuple, np.ndarray)) else [value]
-    ok = bool(values) and all(not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, np.integer, float))
-                              and float(v).is_integer() and v >= 0 for v in values)
-    if not ok:
-        raise MethodError(f"method {who!r}: option {key}={value!r} must be a whole number of samples >= 0 or a list "
-                          "of them (or left out to derive the grid from the data)")
     return sorted({int(v) for v in values})
+
+
+def orders(name: str, default: object, meaning: str, low: int = 0, high: int | None = None, why: str = "",
+           message: str = "", **kw: object) -> Field:
+    """An order option (samples): None (derived from the data), one whole number in [low, high] or a list of them.
+
+    ``message`` (an ``Invalid`` template) replaces every refusal; ``why`` explains the lower bound.
+    """
+
+    def check(value: object) -> object:
+        if value is None:
+            return None
+        values = list(value) if isinstance(value, (list, tuple, np.ndarray)) else [value]
+        if not values or not all(is_number(v) and float(v).is_integer() and v >= 0 for v in values):
+            raise Invalid(message or "{name}={value} must be a whole number of samples >= 0 or a list of them (or "
+                          "left out to derive the grid from the data)")
+        if min(values) < low or (high is not None and max(values) > high):
+            raise Invalid(message or "{name}={value} must be >= " + str(low) + (f" ({why})" if why else ""))
+        return value
+
+    label = f"int in [{low}, {high}]" if high is not None else f"int >= {low}"
+    options = {"unit": "samples", "type_label": f"{label} | list[int] | None", **kw}
+    return Field(name, default, meaning, kind="any", check=check, **options)  # type: ignore[arg-type]
+
+
+ENVELOPE = positive("envelope", 10.0, "divergence: a simulated output leaving [min - e span, max + e span] of the "
+                    "training outputs is held there and the segment counted as diverged")
+"""The ``envelope`` option of the free-run methods."""
 
 
 def derived_orders(n_shortest: int, n_rows: int, n_inputs: int, cap: int, base: Sequence[int] = (1, 2, 4, 8, 16)

@@ -16,8 +16,10 @@ import numpy as np
 from sklearn.preprocessing import StandardScaler
 
 from enginebench.datasets.samples import Samples
+from enginebench.declare import Declaration, choice, flag, text, whole
+from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, check_log_grid_option, log_grid, split_rows
+from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.kernels import check_positive, gaussian, make_scaler, sq_distances
 from enginebench.methods.shifted import ridge_solutions
 
@@ -57,27 +59,21 @@ class KRLS(Method):
     family = "data-driven"
     modes = frozenset({"static", "window"})
     summary = "Gaussian-kernel regularised least squares (exact, one tridiagonalisation per gamma)"
-    grid_options: tuple[str, ...] = ("gamma_grid", "lambda_grid")
-
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "standardize": True,
-            "center_target": True,
-            "gamma_grid": (-4, 4, 41),
-            "lambda_grid": (-4, 4, 41),
-            "solver": "auto",
-            "exact_max_rows": 20_000,
-            "centres": 2000,
-            "device": "auto",
-        }
-
-    def __init__(self, **options: Any) -> None:
-        super().__init__(**options)
-        for key in self.grid_options:
-            check_log_grid_option(self.name, key, self.options[key])
-        if self.options["solver"] not in SOLVERS:
-            raise MethodError(f"method {self.name!r}: solver must be one of {', '.join(SOLVERS)}, got {self.options['solver']!r}")
+    declared_options = Declaration(
+        flag("standardize", True, "scale each feature to zero mean and unit variance on the training rows"),
+        flag("center_target", True, "fit the targets minus their training mean (added back to predictions)"),
+        grid("gamma_grid", (-4, 4, 41), "kernel widths searched: log10 of gamma in exp(-gamma |x - x'|^2) "
+             "(low, high, count)", searches=("gamma",)),
+        grid("lambda_grid", (-4, 4, 41), "ridge penalties searched: log10 of lambda (low, high, count)",
+             searches=("lambda",)),
+        choice("solver", "auto", "exact (one tridiagonalisation per gamma), falkon (Nystroem centres + CG), "
+               "auto: exact up to exact_max_rows training rows", SOLVERS,
+               message="{name} must be one of " + ", ".join(SOLVERS) + ", got {value}"),
+        whole("exact_max_rows", 20_000, "solver auto: the exact solver up to this many training rows, FALKON above",
+              low=0, unit="rows"),
+        whole("centres", 2000, "Nystroem centres of the FALKON solver", low=1, unit="rows"),
+        text("device", "auto", "torch device of the FALKON solver: auto, cpu, cuda or cuda:INDEX"),
+    )
 
     def uses_falkon(self, n_rows: int) -> bool:
         """Exact below ``exact_max_rows`` training rows (solver 'auto'), FALKON above or on request."""
@@ -99,22 +95,21 @@ class KRLS(Method):
         """Scaler, scaled training features, (centred) targets and the target mean."""
         X, y = train.X, train.y
         if len(X) == 0:
-            raise MethodError("method 'krls': the training samples are empty; give at least one training row")
-        _check_finite(X, "training features", train.feature_names)
-        _check_finite(y, "training targets", train.target_names)
+            raise MethodError(f"method {self.name!r}: the training samples are empty; give at least one training row")
+        _check_finite(X, "training features", train.feature_names, self.name)
+        _check_finite(y, "training targets", train.target_names, self.name)
         scaler = make_scaler(X, bool(self.options["standardize"]))
         y_mean = y.mean(axis=0) if self.options["center_target"] else np.zeros(y.shape[1])
         return scaler, scaler.transform(X), y - y_mean, y_mean
 
-    @staticmethod
-    def _eval_features(scaler: StandardScaler, X_train: np.ndarray, data: Samples) -> np.ndarray:
+    def _eval_features(self, scaler: StandardScaler, X_train: np.ndarray, data: Samples) -> np.ndarray:
         X = data.X
         if X.shape[1] != X_train.shape[1]:
             raise MethodError(
-                f"method 'krls': the data have {X.shape[1]} feature columns but the model was trained on "
+                f"method {self.name!r}: the data have {X.shape[1]} feature columns but the model was trained on "
                 f"{X_train.shape[1]}; predict with samples built for the same inputs, mode and window"
             )
-        _check_finite(X, "features to predict", data.feature_names)
+        _check_finite(X, "features to predict", data.feature_names, self.name)
         return scaler.transform(X)
 
     # -- single grid point --------------------------------------------------------------
@@ -198,13 +193,13 @@ def _params(params: Params) -> tuple[float, float]:
     return values[0], values[1]
 
 
-def _check_finite(values: np.ndarray, what: str, names: Sequence[str]) -> None:
+def _check_finite(values: np.ndarray, what: str, names: Sequence[str], who: str = "krls") -> None:
     """MethodError naming the first column and row with nan/inf."""
     bad = ~np.isfinite(values)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         name = names[col] if col < len(names) else f"#{col}"
         raise MethodError(
-            f"method 'krls': {what} contain nan/inf (column {name!r}, stacked row {row}); "
+            f"method {who!r}: {what} contain nan/inf (column {name!r}, stacked row {row}); "
             f"clean or drop those rows before fitting"
         )

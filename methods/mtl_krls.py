@@ -48,6 +48,8 @@ import numpy as np
 from sklearn.preprocessing import StandardScaler
 
 from enginebench.datasets.samples import Samples
+from enginebench.declare import choice, flag
+from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
@@ -109,20 +111,20 @@ class MTLKRLS(KRLS):
     family = "hybrid"
     modes = frozenset({"static", "window"})
     summary = "hybrid multi-task KRLS: measurements and the physical model as two tasks"
-    grid_options = ("gamma_grid", "lambda_grid", "theta_grid")
-
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {**super().default_options(), "theta_grid": (-4, 4, 41), "pm_feature": True, "pm_task": True,
-                "predict_with": "shared"}
+    declared_options = KRLS.declared_options.extend(
+        grid("theta_grid", (-4, 4, 41), "task couplings searched: log10 of theta, pulling the y and PM task models "
+             "towards the shared one (low, high, count)", searches=("theta",)),
+        flag("pm_feature", True, "the physical model's prediction is also an input feature"),
+        flag("pm_task", True, "learn the PM's prediction as a second task (false: the y task twice, no PM task)"),
+        choice("predict_with", "shared", "predict with the shared model (the seed's) or the y-task model",
+               ("shared", "task"), message="{name} must be 'shared' or 'task', got {value}"),
+    )
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
         if self.options["solver"] == "falkon":
             raise MethodError("method 'mtl-krls' has only the exact spectral solver; use solver = 'exact' or 'auto' "
                               "and a training subsample (train_size) it can decompose")
-        if self.options["predict_with"] not in ("shared", "task"):
-            raise MethodError(f"method 'mtl-krls': predict_with must be 'shared' or 'task', got {self.options['predict_with']!r}")
 
     def uses_falkon(self, n_rows: int) -> bool:
         return False
@@ -144,8 +146,8 @@ class MTLKRLS(KRLS):
         X = self._features(train, p)
         if len(X) == 0:
             raise MethodError("method 'mtl-krls': the training samples are empty")
-        _check_finite(X, "training features (with the PM prediction)", (*train.feature_names, "pm"))
-        _check_finite(y, "training targets", train.target_names)
+        _check_finite(X, "training features (with the PM prediction)", (*train.feature_names, "pm"), self.name)
+        _check_finite(y, "training targets", train.target_names, self.name)
         scaler = make_scaler(X, bool(self.options["standardize"]))
         offset = y.mean(axis=0) if self.options["center_target"] else np.zeros(y.shape[1])
         p_task = p if self.options["pm_task"] else y
@@ -161,7 +163,7 @@ class MTLKRLS(KRLS):
         pm = physical_model(data)
         p = np.concatenate(simulate_rows(pm, pm_params, data))
         X = self._features(data, p)
-        _check_finite(X, "features to predict (with the PM prediction)", (*data.feature_names, "pm"))
+        _check_finite(X, "features to predict (with the PM prediction)", (*data.feature_names, "pm"), self.name)
         return scaler.transform(X)
 
     # -- one grid point -------------------------------------------------------------------

@@ -75,9 +75,11 @@ from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, check_positive_option, check_whole_option, log_grid
-from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
-                                         order_options, training_trajectories)
+from enginebench.declare import Declaration, flag, whole
+from enginebench.declare import log_grid as grid
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
+from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
+                                         derived_orders, init_window, orders, training_trajectories)
 from enginebench.methods.kernels import check_positive, gaussian, sq_distances
 
 NAME = "narx"
@@ -383,37 +385,31 @@ class NARX(Method):
     summary = ("kernel NARX: linear ARX part + Gaussian kernel on lagged outputs and inputs (Nystroem for large "
                "sets), selected and predicted in free run")
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "na": None,  # output lags (samples): None = tied to nb on a derived grid, a number or a list
-            "nb": None,  # input lags per input (>= 1)
-            "nk": 0,  # input delay (samples): u(t - nk) is the newest input regressor
-            "max_lag": 64,  # cap of the derived lag grid
-            "kernel_lags": 8,  # the kernel reads at most this many lags of each signal (the linear part all)
-            "linear": True,  # an unpenalised linear ARX part beside the kernel
-            "gamma_grid": (-3.0, 0.0, 4),  # log10 of gamma relative to the regressor count d
-            "lambda_grid": (-12.0, -4.0, 5),  # log10 of lambda relative to the number of regression rows
-            "exact_max_rows": 1000,  # every row a centre up to this many rows, Nystroem centres above
-            "centres": 500,  # Nystroem centres (cost of one simulated step)
-            "max_rows": 20000,  # regression rows used (uniform subsample above; 0 = all)
-            "envelope": 10.0,  # divergence: leaving [min - e span, max + e span] of the training outputs
-        }
+    declared_options = Declaration(
+        orders("na", None, "output lags: None = tied to nb on a derived grid", low=1,
+               why="a NARX feeds back its output; use nfir for a model of inputs only", searches=("na", "lags"),
+               edges="high"),
+        orders("nb", None, "input lags per input: None = tied to na on a derived grid", low=1,
+               why="at least one lag of each input", searches=("nb", "lags"), edges="high"),
+        orders("nk", 0, "input delay: u(t - nk) is the newest input regressor", searches=("nk",), edges="high"),
+        whole("max_lag", 64, "cap of the derived lag grid", low=1, unit="samples"),
+        whole("kernel_lags", 8, "the kernel reads at most this many lags of each signal (the linear part all)",
+              low=1, unit="samples"),
+        flag("linear", True, "an unpenalised linear ARX part beside the kernel"),
+        grid("gamma_grid", (-3.0, 0.0, 4), "kernel widths searched: log10 of gamma relative to the regressor count d "
+             "(low, high, count)", searches=("gamma",)),
+        grid("lambda_grid", (-12.0, -4.0, 5), "ridge penalties searched: log10 of lambda relative to the number of "
+             "regression rows (low, high, count)", searches=("lambda",)),
+        whole("exact_max_rows", 1000, "every regression row a kernel centre up to this many rows, Nystroem centres "
+              "above", low=1, unit="rows"),
+        whole("centres", 500, "Nystroem centres (the cost of one simulated step)", low=1, unit="rows"),
+        whole("max_rows", 20000, "regression rows used (a uniform subsample above; 0 = all)", low=0, unit="rows"),
+        ENVELOPE,
+    )
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
-        o = self.options
-        self._orders = order_options(NAME, o)
-        if self._orders["na"] is not None and 0 in self._orders["na"]:
-            raise MethodError(f"method {NAME!r}: option na={o['na']!r} must be >= 1 (a NARX feeds back its output; "
-                              "use nfir for a model of inputs only)")
-        for key in ("gamma_grid", "lambda_grid"):
-            check_log_grid_option(NAME, key, o[key])
-        if not isinstance(o["linear"], (bool, np.bool_)):
-            raise MethodError(f"method {NAME!r}: option linear must be true or false, got {o['linear']!r}")
-        for key, low in (("max_lag", 1), ("kernel_lags", 1), ("exact_max_rows", 1), ("centres", 1), ("max_rows", 0)):
-            check_whole_option(NAME, key, o[key], low)
-        check_positive_option(NAME, "envelope", o["envelope"])
+        self._orders = {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
 
     # -- grid ---------------------------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:

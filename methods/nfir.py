@@ -46,6 +46,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from enginebench.datasets.samples import Samples
+from enginebench.declare import listing, whole
+from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, SegmentPredictions, split_rows
 from enginebench.methods.kernels import Spectral, check_positive, gaussian, sq_distances
@@ -234,14 +236,6 @@ class NFIRFitted:
     """The memory estimate on the fitting data when the horizons were derived (``horizons = None``)."""
 
 
-def _check_list(key: str, value: Any) -> None:
-    if value is None:
-        return
-    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or not len(value):
-        raise MethodError(f"method 'nfir': option {key} must be a non-empty list or None (derive from the data), "
-                          f"got {value!r}")
-
-
 class NFIR(KRLS):
     """Kernel regression of the output on a window of past run-time inputs (no past outputs)."""
 
@@ -250,36 +244,27 @@ class NFIR(KRLS):
     modes = frozenset({"simulation", "static"})
     summary = "nonlinear FIR: KRLS on lagged inputs only (BIBO-stable); horizons derived from the data's memory (samples)"
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            **KRLS.default_options(),
-            "gamma_grid": (-5, -1, 5),  # relative to the feature count: gamma / d
-            "lambda_grid": (-8, 0, 9),
-            "horizons": None,  # seconds; None = derived from the data's input->output memory (samples)
-            "strides": None,  # samples; None = the stride keeping at most max_lags lags per input
-            "max_lags": 16,  # lags per input (lag 0 included) when the stride is derived
-            "max_rows": 1000,  # training rows for the kernel (0 = all; FALKON above exact_max_rows)
-            "inputs": None,  # run-time input names to lag; None = all
-        }
+    declared_options = KRLS.declared_options.extend(
+        grid("gamma_grid", (-5, -1, 5), "kernel widths searched: log10 of gamma relative to the feature count d "
+             "(the kernel is exp(-(gamma / d) |x - x'|^2)) (low, high, count)", searches=("gamma",)),
+        grid("lambda_grid", (-8, 0, 9), "ridge penalties searched: log10 of lambda (low, high, count)",
+             searches=("lambda",)),
+        listing("horizons", None, "input windows searched; None = derived from the data's input->output memory "
+                "(M/2, M, 2M samples)", items="float", low=0, nullable=True, unit="s", searches=("horizon",),
+                message="{name} must be a non-empty list of seconds >= 0 or None (derive from the data), got {value}"),
+        listing("strides", None, "lag strides searched (with every horizon); None = the stride keeping at most "
+                "max_lags lags per input", items="int", low=1, nullable=True, unit="samples", searches=("stride",),
+                message="{name} must be a non-empty list or None (derive from the data) of whole numbers of samples "
+                        ">= 1, got {value}"),
+        whole("max_lags", 16, "lags per input (lag 0 included) when the stride is derived", low=2),
+        whole("max_rows", 1000, "training rows the kernel is fitted on (a draw of the job's generator; 0 = all)",
+              low=0, unit="rows", message="{name} must be an integer >= 0 (0 = all rows), got {value}"),
+        listing("inputs", None, "run-time input columns to lag; None = all", items="str", nullable=True,
+                message="{name} must be a list of input column names or None, got {value}"),
+    )
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
-        o = self.options
-        for key in ("horizons", "strides"):
-            _check_list(key, o[key])
-        for h in o["horizons"] or ():
-            nfir_lags(h, 1, 1.0)
-        for s in o["strides"] or ():
-            nfir_lags(0.0, s, 1.0)
-        m = o["max_lags"]
-        if isinstance(m, bool) or not (isinstance(m, (int, np.integer)) and m >= 2):
-            raise MethodError(f"method 'nfir': option max_lags must be a whole number >= 2 (lags per input, lag 0 "
-                              f"included), got {m!r}")
-        if not (isinstance(o["max_rows"], (int, np.integer)) and o["max_rows"] >= 0):
-            raise MethodError(f"method 'nfir': option max_rows must be an integer >= 0 (0 = all rows), got {o['max_rows']!r}")
-        if o["inputs"] is not None and (isinstance(o["inputs"], str) or not all(isinstance(c, str) for c in o["inputs"])):
-            raise MethodError(f"method 'nfir': option inputs must be a list of input column names or None, got {o['inputs']!r}")
         self._memory_cache: tuple[tuple, MemoryEstimate] | None = None
 
     # -- horizons from the data -------------------------------------------------------------

@@ -39,11 +39,13 @@ import numpy as np
 
 from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, check_positive_option
-from enginebench.methods.freerun import (Envelope, Trajectory, check_prediction_inputs, derived_orders, init_window,
-                                         option_orders, padded_past, training_trajectories)
+from enginebench.declare import Declaration, choice, whole
+from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
+                                         derived_orders, init_window, orders, padded_past, training_trajectories)
 
 INSTALL = 'pip install "enginebench[peers]"'
+INFO_CRITERIA = ("aic", "aicc", "bic", "fpe", "lilc")
 
 
 def _missing(module: str) -> str | None:
@@ -72,7 +74,6 @@ class PeerMethod(Method):
         if reason:
             raise MethodError(f"method {self.name!r} {reason}")
         super().__init__(**options)
-        check_positive_option(self.name, "envelope", self.options["envelope"])
 
 
 def _summary(package: str, text: str) -> str:
@@ -123,13 +124,6 @@ def _predictions(who: str, data: Samples, k: int, envelope: Envelope, run) -> Se
     return SegmentPredictions(arrays, flags)
 
 
-def _check_orders(who: str, options: dict[str, Any], key: str, low: int) -> list[int] | None:
-    values = option_orders(who, key, options[key])
-    if values is not None and min(values) < low:
-        raise MethodError(f"method {who!r}: option {key}={options[key]!r} must be >= {low}")
-    return values
-
-
 def _whole_number(who: str, params: Params, key: str, low: int) -> int:
     if key not in params:
         raise MethodError(f"method {who!r}: hyperparameter {key} missing from {dict(params)!r}")
@@ -160,30 +154,23 @@ class SysIdentPyNARX(PeerMethod):
     summary = _summary("sysidentpy", "peer: SysIdentPy polynomial NARX, FROLS structure selection (degree, lags "
                                      "searched), least squares, free run")
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "degrees": (1, 2, 3),  # polynomial degrees searched
-            "lags": None,  # ylag = xlag (samples): None = derived {1, 2, 4} within what the data carry
-            "n_info_values": 30,  # FROLS considers at most this many terms (AIC picks the count)
-            "info_criteria": "aic",
-            "envelope": 10.0,
-        }
+    declared_options = Declaration(
+        orders("degrees", (1, 2, 3), "polynomial degrees searched", low=1, searches=("degree",), edges="high",
+               high=5, type_label="int in [1, 5] | list[int]", unit="",
+               message="{name}={value} must list degrees from 1 to 5"),
+        orders("lags", None, "ylag = xlag: None = derived from {1, 2, 4} within what the data carry", low=1,
+               searches=("lags",), edges="high"),
+        whole("n_info_values", 30, "FROLS considers at most this many terms (the information criterion picks the "
+              "count)", low=1),
+        choice("info_criteria", "aic", "information criterion of FROLS's term count", INFO_CRITERIA,
+               message="{name} must be one of " + ", ".join(INFO_CRITERIA) + ", got {value}"),
+        ENVELOPE,
+    )
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
-        o = self.options
-        self._lags = _check_orders(self.name, o, "lags", 1)
-        degrees = option_orders(self.name, "degrees", o["degrees"])
-        if not degrees or min(degrees) < 1 or max(degrees) > 5:
-            raise MethodError(f"method {self.name!r}: option degrees={o['degrees']!r} must list degrees from 1 to 5")
-        self._degrees = degrees
-        if isinstance(o["n_info_values"], bool) or not isinstance(o["n_info_values"], int) or o["n_info_values"] < 1:
-            raise MethodError(f"method {self.name!r}: option n_info_values must be a whole number >= 1, "
-                              f"got {o['n_info_values']!r}")
-        if o["info_criteria"] not in ("aic", "aicc", "bic", "fpe", "lilc"):
-            raise MethodError(f"method {self.name!r}: option info_criteria must be one of aic, aicc, bic, fpe, lilc, "
-                              f"got {o['info_criteria']!r}")
+        self._lags = as_orders(self.options["lags"])
+        self._degrees = as_orders(self.options["degrees"])
 
     def search_space(self, data: Samples) -> SearchSpace:
         sizes = [len(s) for s in data.segments] or [0]
@@ -304,24 +291,19 @@ class N4SID(PeerMethod):
     summary = _summary("nfoursid", "peer: linear state-space model by subspace identification (nfoursid), order "
                                    "searched, state estimated on the init window, free run")
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "orders": None,  # state orders searched: None = derived {1, 2, 4, 8, 16} within what the data carry
-            "block_rows": None,  # Hankel block rows: None = 1.5 x the order / outputs, at least 2
-            "max_samples": 5000,  # samples handed to nfoursid (its full SVD forms an n x n factor)
-            "envelope": 10.0,
-        }
+    declared_options = Declaration(
+        orders("orders", None, "state orders searched: None = derived from {1, 2, 4, 8, 16} within what the data "
+               "carry", low=1, searches=("order",), edges="high"),
+        whole("block_rows", None, "Hankel block rows: None = 1.5 x the order / outputs, at least 2", low=1,
+              nullable=True),
+        whole("max_samples", 5000, "samples handed to nfoursid (its full SVD forms an n x n factor)", low=10,
+              unit="samples"),
+        ENVELOPE,
+    )
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)
-        self._orders = _check_orders(self.name, self.options, "orders", 1)
-        br = self.options["block_rows"]
-        if br is not None and (isinstance(br, bool) or not isinstance(br, int) or br < 1):
-            raise MethodError(f"method {self.name!r}: option block_rows must be a whole number >= 1, got {br!r}")
-        ms = self.options["max_samples"]
-        if isinstance(ms, bool) or not isinstance(ms, int) or ms < 10:
-            raise MethodError(f"method {self.name!r}: option max_samples must be a whole number >= 10, got {ms!r}")
+        self._orders = as_orders(self.options["orders"])
 
     def search_space(self, data: Samples) -> SearchSpace:
         sizes = [len(s) for s in data.segments] or [0]

@@ -48,6 +48,7 @@ import pysindy as ps
 from sklearn.linear_model import ridge_regression
 
 from enginebench.datasets.samples import Samples
+from enginebench.declare import Declaration, Field, Invalid, choice, listing, positive, whole
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
@@ -60,6 +61,26 @@ THRESHOLD_SCALES = ("relative", "absolute")
 DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
 """Default STLSQ threshold grids: relative to each derivative's rms, or seed 003's absolute range."""
 MIN_ROWS = 4
+
+
+def _ordered(value: Any) -> Any:
+    if len(value) != 2 or not value[0] <= value[1]:
+        raise Invalid("{name} must be (low, high) with 0 < low <= high, got {value}")
+    return value
+
+
+def _degrees(value: Any) -> Any:
+    for d in value:
+        if not (float(d).is_integer() and 1 <= d <= 5):
+            raise Invalid("{name}: polynomial degree must be an integer from 1 to 5, got " + repr(d))
+    return value
+
+
+def span(name: str, default: Any, meaning: str, **kw: Any) -> Field:
+    """A (low, high) pair with 0 < low <= high."""
+    return listing(name, default, meaning, items="float", low=0, low_open=True, check=_ordered,
+                   message="{name} must be (low, high) with 0 < low <= high, got {value}", type_label="(low, high)"
+                   + (" | None" if kw.get("nullable") else ""), **kw)
 """A training segment needs at least this many rows to be differentiated."""
 
 
@@ -172,56 +193,30 @@ class SINDy(Method):
     modes = frozenset({"simulation"})
     summary = "pysindy polynomial ODE with control inputs, STLSQ, batched open-loop simulation"
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return {
-            "degrees": (1, 2, 3),
-            "threshold_scale": "relative",  # thresholds x rms of each state's derivative, or "absolute"
-            "threshold_range": None,  # None: (0.01, 0.5) relative, seed 003's (1e-2, 1e3) absolute
-            "n_thresholds": 4,
-            "alpha_range": (1e-4, 1e-1),
-            "n_alphas": 3,
-            "derivative": "trend_filtered",
-            "derivative_alpha": None,
-            "derivative_chunk": 256,
-            "derivative_margin": 32,
-            "derivative_max_iter": 20000,
-            "time_scale": 1.0,
-            "integrator": "rk4",
-            "substeps": 1,
-            "envelope": 10.0,
-        }
-
-    def __init__(self, **options: Any) -> None:
-        super().__init__(**options)
-        o = self.options
-        if o["derivative"] not in DERIVATIVE_KINDS:
-            raise MethodError(f"sindy: option derivative={o['derivative']!r}; use one of {', '.join(DERIVATIVE_KINDS)}")
-        if o["integrator"] not in INTEGRATORS:
-            raise MethodError(f"sindy: option integrator={o['integrator']!r}; use one of {', '.join(INTEGRATORS)}")
-        for key in ("time_scale", "envelope"):
-            if not (isinstance(o[key], (int, float)) and o[key] > 0):
-                raise MethodError(f"sindy: option {key} must be a positive number, got {o[key]!r}")
-        for key in ("substeps", "n_thresholds", "n_alphas", "derivative_chunk", "derivative_max_iter"):
-            if not (isinstance(o[key], (int, np.integer)) and o[key] >= 1):
-                raise MethodError(f"sindy: option {key} must be a positive integer, got {o[key]!r}")
-        if o["derivative_alpha"] is not None and not o["derivative_alpha"] > 0:
-            raise MethodError(f"sindy: option derivative_alpha must be positive, got {o['derivative_alpha']!r}")
-        if o["threshold_scale"] not in THRESHOLD_SCALES:
-            raise MethodError(f"sindy: option threshold_scale={o['threshold_scale']!r}; use 'relative' (x rms of each "
-                              "state's derivative) or 'absolute' (per time_scale second)")
-        for key in ("threshold_range", "alpha_range"):
-            if key == "threshold_range" and o[key] is None:
-                continue
-            try:
-                lo, hi = o[key]
-                ok = bool(0 < lo <= hi)
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise MethodError(f"sindy: option {key} must be (low, high) with 0 < low <= high, got {o[key]!r}")
-        for d in o["degrees"]:
-            self._check_degree(d, "option degrees")
+    declared_options = Declaration(
+        listing("degrees", (1, 2, 3), "polynomial degrees of the library searched", items="float", searches=("degree",),
+                edges="high", check=_degrees),
+        choice("threshold_scale", "relative", "STLSQ thresholds relative to the rms of each state's derivative, or "
+               "absolute (per time_scale second, the seed's)", THRESHOLD_SCALES),
+        span("threshold_range", None, "STLSQ thresholds searched (log grid); None = (0.01, 0.5) relative or "
+             "(1e-2, 1e3) absolute", nullable=True, searches=("threshold",)),
+        whole("n_thresholds", 4, "thresholds on the grid", low=1),
+        span("alpha_range", (1e-4, 1e-1), "ridge alphas of STLSQ searched (log grid)", searches=("alpha",)),
+        whole("n_alphas", 3, "alphas on the grid", low=1),
+        choice("derivative", "trend_filtered", "how state derivatives are estimated from the samples",
+               DERIVATIVE_KINDS),
+        positive("derivative_alpha", None, "smoothing weight of the derivative estimate; None = 1e-3 "
+                 "(trend_filtered) or 1.0 (kalman)", nullable=True),
+        whole("derivative_chunk", 256, "samples per chunk of the trend-filtered derivative", low=1, unit="samples"),
+        whole("derivative_margin", 32, "overlap between derivative chunks", low=0, unit="samples"),
+        whole("derivative_max_iter", 20000, "iteration cap of the trend-filtered derivative's solver", low=1),
+        positive("time_scale", 1.0, "time unit of the identified ODE (the derivative is per time_scale seconds)",
+                 unit="s"),
+        choice("integrator", "rk4", "open-loop simulation's integration scheme", INTEGRATORS),
+        whole("substeps", 1, "integration steps per sample period", low=1),
+        positive("envelope", 10.0, "divergence: a state leaving [min - e span, max + e span] of the training "
+                 "outputs"),
+    )
 
     @staticmethod
     def _check_degree(d: Any, where: str) -> int:

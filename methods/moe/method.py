@@ -10,7 +10,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.moe.explain import describe, gate_weights
 from enginebench.methods.moe.fitted import MoEFitted
-from enginebench.methods.moe.options import HYPERPARAMETERS, check_options, default_options
+from enginebench.methods.moe.options import HYPERPARAMETERS, OPTIONS
 from enginebench.methods.moe.simulation import simulate
 from enginebench.methods.moe.training import fit_mixture
 
@@ -23,13 +23,7 @@ class MoE(Method):
     modes = frozenset({"simulation"})
     summary = "mixture of LPV experts with frozen stability, trained on TV derivatives (seed 003)"
 
-    @classmethod
-    def default_options(cls) -> dict[str, Any]:
-        return default_options()
-
-    def __init__(self, **options: Any) -> None:
-        super().__init__(**options)
-        check_options(self.options)
+    declared_options = OPTIONS
 
     def search_space(self, data: Samples) -> SearchSpace:
         return {

@@ -1,4 +1,4 @@
-"""MoE's options and hyperparameters: defaults, meaning and the checks run when a method is built.
+"""MoE's options and hyperparameters: their declaration (defaults, meaning, checks) and the hyperparameter checks.
 
 Time-based options default to a number of samples, so they follow the data's sample
 period: ``derivative_window`` (input derivatives' Savitzky-Golay window) is 24 samples and
@@ -15,6 +15,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from enginebench.declare import (Declaration, Invalid, anything, choice, flag, is_number, is_whole, listing, number,
+                                 positive, table, text, whole)
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params
 from enginebench.methods.numerics.device import resolve_device
@@ -43,125 +45,110 @@ def window_steps(window_s: float | None, h: float, default_samples: int) -> int:
     return int(default_samples) if window_s is None else int(round(window_s / h))
 
 
-def default_options() -> dict[str, Any]:
-    """Every option of ``moe`` with its default (what each means is written beside it)."""
-    return {
-        "scheduler": None,  # input names that schedule gate and experts; None = all inputs
-        "scheduler_state": False,  # also schedule on the state (quasi-LPV)
-        "expert_inputs": None,  # input names in the regressors [z; u; 1]; None = all inputs
-        # input derivatives added to the regressors (seed 003's u_WF = [dNR, dNR', dNR'', COL, COL']):
-        # {column: highest order 1 or 2}, from a cubic Savitzky-Golay fit over derivative_window seconds
-        "input_derivatives": None,
-        "derivative_window": None,  # seconds; None = DERIVATIVE_WINDOW_SAMPLES (24) samples
-        # standard-day correction (seed 003, after Volponi 1998): {column: {input: [reference, exponent]}}
-        # models column / prod (input/reference)^exponent; e.g. WF/(delta sqrt(theta)) is
-        # {"WF": {"P0": [101.325, 1.0], "T1": [288.15, 0.5]}}. Targets are predicted back in raw units.
-        "correct": None,
-        "bias": True,
-        "signs": "stable",  # "stable" (own-state coefficients < 0), "none", or {column: "+"/"-"}
-        "competitive": "alpha2",  # competitive-term weights: seed eq. 4c alpha^2, or "alpha"
-        "expert_hidden": 16,
-        "batch_size": 512,
-        "tv_alpha": 0.05,  # TV regularisation in standardised-output units, time in samples
-        "tv_order": 0,
-        "integrator": "rk4",  # or "euler"
-        "input_interp": "linear",  # inputs between samples: "linear" or "hold"
-        "envelope": 10.0,  # divergence when y leaves [min - e*range, max + e*range] of training
-        "probe_points": 512,
-        "clip_schedulers": True,  # hold schedulers at the edge of their training range when simulating
-        # where the experts start (plus small scheduled parts): the sign-bounded least-squares fit of the
-        # derivatives, the only start kept ("output_error" and "random" were removed)
-        "init": "lstsq",
-        # frozen-stability margin: every expert's own-state coefficient stays <= -1/max_time_constant
-        # (1/s), i.e. no local time constant slower than this many seconds; None = only < 0
-        "max_time_constant": None,
-        # sim_weight > 0 adds sim_weight x the mean squared open-loop simulation error (standardised)
-        # of shooting_window-second training windows, each started from its measured first value, to
-        # seed 003's derivative loss; 0 = the seed's derivative-only training
-        "sim_weight": 0.0,
-        "shooting_window": None,  # seconds; None = SHOOTING_WINDOW_SAMPLES (240) sample steps
-        "device": "auto",  # "auto" | "cpu" | "cuda[:index]"
-        "dtype": "float32",  # or "float64"
-        "cpu_threads": 1,  # torch intra-op threads on CPU while fitting/simulating; None = leave as is
-    }
+DERIVATIVES_MESSAGE = "{name}={value} must map input columns to an order 1 or 2, e.g. {'COL': 1, 'NR': 2}"
+CORRECT_MESSAGE = ("{name}={value} must map columns to {input: [reference > 0, exponent]}, e.g. "
+                   "{'WF': {'P0': [101.325, 1.0], 'T1': [288.15, 0.5]}} for WF / (delta sqrt(theta))")
+NAMES_MESSAGE = "{name}={value} must be a list of input column names or None"
 
 
-def check_options(o: Mapping[str, Any]) -> None:
-    """Raise MethodError naming the first bad option, its value and what it should be."""
-    choices = {
-        "competitive": ("alpha2", "alpha"),
-        "integrator": ("rk4", "euler"),
-        "input_interp": ("linear", "hold"),
-        "dtype": ("float32", "float64"),
-        "tv_order": (0, 1),
-    }
-    if o["init"] != "lstsq":
-        raise MethodError(
-            f"method 'moe': option init={o['init']!r}; only 'lstsq' (the sign-bounded least-squares start) is "
-            "available: the output-error and random starts were removed; leave init out"
-        )
-    for key, allowed in choices.items():
-        if o[key] not in allowed:
-            raise MethodError(f"method 'moe': option {key}={o[key]!r}; use one of {', '.join(map(repr, allowed))}")
-    if not isinstance(o["clip_schedulers"], bool):
-        raise MethodError(f"method 'moe': option clip_schedulers={o['clip_schedulers']!r} must be true or false")
-    for key in ("expert_hidden", "batch_size", "probe_points"):
-        if not (isinstance(o[key], (int, np.integer)) and o[key] >= 1):
-            raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a positive integer")
-    if o["cpu_threads"] is not None and not (isinstance(o["cpu_threads"], (int, np.integer)) and o["cpu_threads"] >= 1):
-        raise MethodError(f"method 'moe': option cpu_threads={o['cpu_threads']!r} must be a positive integer or None")
-    for key in ("tv_alpha", "envelope", "derivative_window", "shooting_window"):
-        if key.endswith("_window") and o[key] is None:
-            continue
-        if not (isinstance(o[key], (int, float)) and np.isfinite(o[key]) and o[key] > 0):
-            unit = " of seconds (or None for the default in samples)" if key.endswith("_window") else ""
-            raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a positive number{unit}")
-    if not (isinstance(o["sim_weight"], (int, float)) and not isinstance(o["sim_weight"], bool)
-            and np.isfinite(o["sim_weight"]) and o["sim_weight"] >= 0):
-        raise MethodError(f"method 'moe': option sim_weight={o['sim_weight']!r} must be a finite number >= 0")
-    tmax = o["max_time_constant"]
-    if tmax is not None and not (
-        isinstance(tmax, (int, float)) and not isinstance(tmax, bool) and np.isfinite(tmax) and tmax > 0
-    ):
-        raise MethodError(f"method 'moe': option max_time_constant={tmax!r} must be a positive number of seconds or None")
-    if not (o["signs"] in ("stable", "none") or isinstance(o["signs"], Mapping)):
-        raise MethodError(
-            f"method 'moe': option signs={o['signs']!r}; use 'stable', 'none' or a mapping "
-            "{column: '+' or '-'} such as {'TRQ': '-', 'WF': '+'}"
-        )
-    if isinstance(o["signs"], Mapping):
-        for col, word in o["signs"].items():
+def _init(value: Any) -> Any:
+    if value != "lstsq":
+        raise Invalid("{name}={value}; only 'lstsq' (the sign-bounded least-squares start) is available: the "
+                      "output-error and random starts were removed; leave init out")
+    return value
+
+
+def _signs(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        for col, word in value.items():
             if word not in SIGN_WORDS:
-                raise MethodError(f"method 'moe': option signs[{col!r}]={word!r}; use '+', '-' or 'free'")
-    if o["input_derivatives"] is not None:
-        if not isinstance(o["input_derivatives"], Mapping) or not all(
-            isinstance(c, str) and isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n in (1, 2)
-            for c, n in o["input_derivatives"].items()
-        ):
-            raise MethodError(
-                f"method 'moe': option input_derivatives={o['input_derivatives']!r} must map input columns to "
-                "an order 1 or 2, e.g. {'COL': 1, 'NR': 2}"
-            )
-    if o["correct"] is not None and not (
-        isinstance(o["correct"], Mapping)
-        and all(
-            isinstance(col, str) and isinstance(by, Mapping) and by
-            and all(
-                isinstance(c, str) and isinstance(v, (list, tuple)) and len(v) == 2
-                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v) and v[0] > 0
-                for c, v in by.items()
-            )
-            for col, by in o["correct"].items()
-        )
-    ):
-        raise MethodError(
-            f"method 'moe': option correct={o['correct']!r} must map columns to {{input: [reference > 0, exponent]}}, "
-            "e.g. {'WF': {'P0': [101.325, 1.0], 'T1': [288.15, 0.5]}} for WF / (delta sqrt(theta))"
-        )
-    for key in ("scheduler", "expert_inputs"):
-        if o[key] is not None and (isinstance(o[key], str) or not all(isinstance(c, str) for c in o[key])):
-            raise MethodError(f"method 'moe': option {key}={o[key]!r} must be a list of input column names or None")
-    resolve_device(o["device"], "method 'moe': option device")
+                raise Invalid("{name}[" + repr(col) + "]=" + repr(word) + "; use '+', '-' or 'free'")
+    elif value not in ("stable", "none"):
+        raise Invalid("{name}={value}; use 'stable', 'none' or a mapping {column: '+' or '-'} such as "
+                      "{'TRQ': '-', 'WF': '+'}")
+    return value
+
+
+def _derivatives(value: Any) -> Any:
+    if not all(isinstance(c, str) and is_whole(n) and n in (1, 2) for c, n in value.items()):
+        raise Invalid(DERIVATIVES_MESSAGE)
+    return value
+
+
+def _reference_pair(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and len(v) == 2 and all(is_number(x) and np.isfinite(x) for x in v) and v[0] > 0
+
+
+def _correct(value: Any) -> Any:
+    if not all(isinstance(col, str) and isinstance(by, Mapping) and by
+               and all(isinstance(c, str) and _reference_pair(v) for c, v in by.items()) for col, by in value.items()):
+        raise Invalid(CORRECT_MESSAGE)
+    return value
+
+
+def _device(value: Any) -> Any:
+    resolve_device(value, "method 'moe': option device")
+    return value
+
+
+OPTIONS = Declaration(
+    listing("scheduler", None, "input columns that schedule gate and experts; None = all inputs", items="str",
+            nullable=True, min_items=0, message=NAMES_MESSAGE),
+    flag("scheduler_state", False, "also schedule on the state (quasi-LPV)"),
+    listing("expert_inputs", None, "input columns in the experts' regressors [z; u; 1]; None = all inputs",
+            items="str", nullable=True, min_items=0, message=NAMES_MESSAGE),
+    table("input_derivatives", None, "input derivatives added to the regressors, {column: highest order 1 or 2} "
+          "(seed 003's dNR', dNR'', COL'), from a cubic Savitzky-Golay fit over derivative_window", nullable=True,
+          check=_derivatives, message=DERIVATIVES_MESSAGE),
+    positive("derivative_window", None, "window of the input derivatives; None = "
+             f"{DERIVATIVE_WINDOW_SAMPLES} samples", nullable=True, unit="s",
+             message="{name}={value} must be a positive number of seconds (or None for the default in samples)"),
+    table("correct", None, "standard-day correction {column: {input: [reference, exponent]}}: models column / "
+          "prod (input/reference)^exponent, predicted back in raw units", nullable=True, check=_correct,
+          message=CORRECT_MESSAGE),
+    flag("bias", True, "a constant term in each expert's regressors"),
+    anything("signs", "stable", "sign constraints: 'stable' (own-state coefficients < 0), 'none', or "
+             "{column: '+' | '-' | 'free'}", check=_signs, type_label="'stable' | 'none' | table"),
+    choice("competitive", "alpha2", "competitive-term weights of the gate loss: seed eq. 4c's alpha^2, or alpha",
+           ("alpha2", "alpha")),
+    whole("expert_hidden", 16, "hidden units of each expert's scheduling network", low=1,
+          message="{name}={value} must be a positive integer"),
+    whole("batch_size", 512, "training rows per gradient step", low=1, unit="rows",
+          message="{name}={value} must be a positive integer"),
+    positive("tv_alpha", 0.05, "total-variation regularisation of the derivative targets (standardised output "
+             "units, time in samples)", message="{name}={value} must be a positive number"),
+    choice("tv_order", 0, "order of the total-variation regularisation", (0, 1)),
+    choice("integrator", "rk4", "simulation's integration scheme", ("rk4", "euler")),
+    choice("input_interp", "linear", "inputs between samples: linear interpolation or hold", ("linear", "hold")),
+    positive("envelope", 10.0, "divergence: y leaving [min - e range, max + e range] of the training outputs",
+             message="{name}={value} must be a positive number"),
+    whole("probe_points", 512, "points probed for the frozen-stability verdict", low=1,
+          message="{name}={value} must be a positive integer"),
+    flag("clip_schedulers", True, "hold schedulers at the edge of their training range when simulating",
+         message="{name}={value} must be true or false"),
+    anything("init", "lstsq", "where the experts start: the sign-bounded least-squares fit of the derivatives "
+             "(the only start kept)", check=_init, type_label="choice: lstsq"),
+    positive("max_time_constant", None, "frozen-stability margin: every expert's own-state coefficient <= "
+             "-1/max_time_constant; None = only < 0", nullable=True, unit="s",
+             message="{name}={value} must be a positive number of seconds or None"),
+    number("sim_weight", 0.0, "weight of the open-loop simulation error over shooting_window windows added to "
+           "the derivative loss; 0 = the seed's derivative-only training", low=0,
+           message="{name}={value} must be a finite number >= 0"),
+    positive("shooting_window", None, "length of the simulation-error windows; None = "
+             f"{SHOOTING_WINDOW_SAMPLES} sample steps", nullable=True, unit="s",
+             message="{name}={value} must be a positive number of seconds (or None for the default in samples)"),
+    text("device", "auto", "torch device: auto, cpu, cuda or cuda:INDEX", check=_device,
+         message="{name}={value} must be a string ('auto', 'cpu', 'cuda', 'cuda:0')"),
+    choice("dtype", "float32", "torch floating-point precision", ("float32", "float64")),
+    whole("cpu_threads", 1, "torch intra-op threads on CPU while fitting and simulating; None = leave as is",
+          low=1, nullable=True, message="{name}={value} must be a positive integer or None"),
+)
+"""Every option of ``moe``: default, kind, unit and meaning."""
+
+
+def default_options() -> dict[str, Any]:
+    """Every option of ``moe`` with its default (``OPTIONS`` says what each means)."""
+    return OPTIONS.defaults()
 
 
 def resolve_params(params: Params) -> dict[str, Any]:
