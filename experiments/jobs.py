@@ -24,6 +24,7 @@ from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.methods.base import Method
 from enginebench.results.metrics import compute_metrics, mean_abs
+from enginebench.results.store import SELECTION_META
 
 
 @dataclass(frozen=True)
@@ -190,7 +191,7 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     method = ctx.methods[job.method]
     base = {"dataset": ctx.dataset, "target": job.target, "mode": spec.mode, "window": job.window,
             "method": job.method, "family": method.family, "repetition": job.repetition}
-    meta: dict[str, Any] = {"job": job.key, **base}
+    meta: dict[str, Any] = {"job": job.key, **base, "split": job.split}
     timings: dict[str, float] = {}
     rows: list[dict[str, Any]] = []
     with warnings.catch_warnings(record=True) as caught:
@@ -215,6 +216,13 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         scored = frame["split"] != "-"
         frame.loc[scored, "split"] = frame.loc[scored, "split"] + problem.label
     return frame, meta
+
+
+def selection_frame(frame: pd.DataFrame, job: Job) -> pd.DataFrame:
+    """A selection table (``SelectionTable.frame``) with the job's coordinates in front, as ``Run.selection_table`` reads it."""
+    coords = {"target": job.target, "window": float(job.window), "split": job.split, "method": job.method,
+              "repetition": int(job.repetition)}
+    return pd.concat([pd.DataFrame(coords, index=frame.index), frame], axis=1)
 
 
 MAX_JOB_WARNINGS = 5
@@ -247,6 +255,9 @@ def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, met
         validation = problem.parts["validation"].materialize() if "validation" in problem.parts else None
         params, search = select(method, train, spec.selection, rng, validation, spec.init_samples)
         timings["select_s"] = time.perf_counter() - t0
+        table = search.pop("table", None)
+        if table is not None:  # the store writes it as the job's selection file (Run.write_job)
+            meta[SELECTION_META] = selection_frame(table.frame(), job)
         t0 = time.perf_counter()
         fit_on = refit_samples(spec, problem, train, job.repetition, job.split)
         fitted = method.fit(fit_on, params, rng)

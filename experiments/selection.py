@@ -8,9 +8,12 @@ all regularisation values) do it once per resample.
 
 from __future__ import annotations
 
+import numbers
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from enginebench.datasets.samples import Samples
 from enginebench.datasets.splits import blocked_folds
@@ -112,9 +115,13 @@ def record_blocks(sizes: np.ndarray, folds: int, init_samples: int = 0
     return out
 
 
-def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, Any]) -> list[str]:
-    """A warning for each selected value that sits at the edge of a numeric grid of 3 or more values."""
-    out = []
+def grid_edges(space: dict[str, np.ndarray], chosen: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Where each selected value sits in its grid, for every numeric grid of 3 or more distinct finite values.
+
+    ``{name: {"edge": "lower" | "upper" | None, "value": selected, "lower": grid min, "upper": grid max}}``;
+    other parameters (short, non-numeric or non-finite grids) are left out: an edge of theirs says nothing.
+    """
+    out: dict[str, dict[str, Any]] = {}
     for name, values in space.items():
         try:
             grid = np.unique(np.asarray(values, dtype=float))
@@ -124,10 +131,47 @@ def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, A
         if len(grid) < 3 or not np.isfinite(grid).all():
             continue
         edge = "lower" if value == grid[0] else "upper" if value == grid[-1] else None
-        if edge:
-            out.append(f"{method}: {name} = {value:g} selected at the {edge} edge of its grid "
-                       f"[{grid[0]:g} .. {grid[-1]:g}]; the optimum may lie beyond it: widen the grid")
+        out[name] = {"edge": edge, "value": value, "lower": float(grid[0]), "upper": float(grid[-1])}
     return out
+
+
+def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, Any]) -> list[str]:
+    """A warning for each selected value that sits at the edge of a numeric grid of 3 or more values."""
+    return [f"{method}: {name} = {e['value']:g} selected at the {e['edge']} edge of its grid "
+            f"[{e['lower']:g} .. {e['upper']:g}]; the optimum may lie beyond it: widen the grid"
+            for name, e in grid_edges(space, chosen).items() if e["edge"]]
+
+
+@dataclass(frozen=True)
+class SelectionTable:
+    """Every grid point's score on every resample or fold of one selection (the validation curve as data)."""
+
+    grid: list[dict[str, Any]]
+    """The grid points, in the order methods were asked to predict them."""
+    scores: np.ndarray
+    """(n_grid, n_resamples) float64 criterion values; +inf where a point's predictions were non-finite."""
+    criterion: str
+    chosen: int
+    """Index in ``grid`` of the selected point (lowest mean score over the resamples)."""
+
+    def frame(self) -> pd.DataFrame:
+        """One row per (grid point, resample): ``point``, ``param:<name>`` per hyperparameter (float, or text
+        for a non-numeric value), ``resample``, ``score``, ``criterion`` and ``chosen`` (True on every row
+        of the selected point)."""
+        n_grid, n_res = self.scores.shape
+        point = np.repeat(np.arange(n_grid, dtype=np.int64), n_res)
+        out: dict[str, Any] = {"point": point}
+        for name in self.grid[0] if self.grid else []:
+            values = [p[name] for p in self.grid]
+            numeric = all(isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) for v in values)
+            column = (np.asarray(values, dtype=float) if numeric
+                      else np.array([v if isinstance(v, str) else str(v) for v in values], dtype=object))
+            out[f"param:{name}"] = column[point]
+        out["resample"] = np.tile(np.arange(n_res, dtype=np.int64), n_grid)
+        out["score"] = np.asarray(self.scores, dtype=np.float64).reshape(-1)
+        out["criterion"] = self.criterion
+        out["chosen"] = point == self.chosen
+        return pd.DataFrame(out)
 
 
 def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator,
@@ -138,7 +182,11 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     own validation part (the turboshaft seed's protocol). ``init_samples`` is the
     experiment's state initialisation window, given to validation blocks cut from
     training records (simulation-mode k-fold). The record lists the selected values at
-    the edge of their grid under ``warnings``.
+    the edge of their grid under ``warnings``, where each searched numeric parameter sits
+    in its grid under ``grid_edges`` (``grid_edges``, plus ``option``: the method's
+    ``<name>_grid`` option when it has one), and holds the scores of every grid point on
+    every resample or fold under ``table`` (a :class:`SelectionTable`; absent when
+    nothing was scored: an empty or one-point grid, ``kind = "none"``).
     """
     grid = grid_points(method.search_space(train))
     if not grid:
@@ -158,15 +206,22 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
         parts = [(train.take(f), train.take(v)) for f, v in resample_pairs(len(train), selection, rng, sizes)]
     if not parts:
         raise MethodError(f"model selection for {method.name!r}: no usable resample (training set of {len(train)} rows)")
-    for fit_part, val_part in parts:
+    scores = np.empty((len(grid), len(parts)))
+    for j, (fit_part, val_part) in enumerate(parts):
         preds = method.predict_grid(fit_part, val_part.without_targets(), grid, rng)
-        total += grid_scores(preds, val_part, selection.criterion)
+        scores[:, j] = grid_scores(preds, val_part, selection.criterion)
+        total += scores[:, j]
     mean = total / len(parts)
     if not np.isfinite(mean).any():
         raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
     best = int(np.argmin(mean))
-    record = {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts)}
-    warnings = edge_warnings(method.name, method.search_space(train), grid[best])
+    space = method.search_space(train)
+    edges = grid_edges(space, grid[best])
+    for name, found in edges.items():
+        found["option"] = f"{name}_grid" if f"{name}_grid" in getattr(method, "options", {}) else None
+    record = {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts),
+              "grid_edges": edges, "table": SelectionTable(grid, scores, selection.criterion, best)}
+    warnings = edge_warnings(method.name, space, grid[best])
     if warnings:
         record["warnings"] = warnings
     return grid[best], record

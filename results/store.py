@@ -9,6 +9,9 @@ Layout::
         environment.json                package versions, git commit, CPU/GPU, seeds
         jobs/<job-key>.parquet          metric rows of one finished job; params,
                                         describe() and timings in the file's metadata
+        selection/<job-key>.parquet     the job's model-selection scores (one row per grid
+                                        point and resample or fold), for jobs that selected;
+                                        its SHA-256 is in the job file's metadata
 
 A job file appears under its final name only once complete (temporary file + rename in
 the same folder), so a killed run leaves finished jobs intact and no half-written file.
@@ -27,6 +30,10 @@ Faults, and what the store does about them:
   the run's metrics refuses with a message naming the file, and ``finished_jobs`` does not
   count it, so ``run --resume`` recomputes that job and keeps every other job as it is
   (``damaged_jobs`` names the damaged files and why);
+* a damaged or missing selection table (a job file's metadata records the SHA-256 of its
+  selection file, written right after it; a failed write of the table removes the job
+  file again): ``Run.selection_table`` refuses naming the file, and the job counts as
+  damaged exactly like a damaged job file (not finished, recomputed by ``run --resume``);
 * a damaged run folder (run.json, config.toml or environment.json missing or
   unreadable): ``Run.damage()`` says why, ``runs list`` shows it as damaged, and
   ``latest`` is the newest run that is *not* damaged; reading it by id is one line;
@@ -49,6 +56,7 @@ from __future__ import annotations
 import calendar
 import contextlib
 import errno
+import hashlib
 import json
 import os
 import re
@@ -75,6 +83,10 @@ DEFAULT_STORE = "enginebench-runs"
 JOB_META_KEY = b"enginebench.job"
 LOCK_FILE = "run.lock"
 """The lock file of a run folder (see ``Run.lock``)."""
+SELECTION_DIR = "selection"
+"""The folder of a run holding one selection table per job that selected hyperparameters."""
+SELECTION_META = "selection_table"
+"""The key under which a job's metadata brings its selection table (a DataFrame) to ``Run.write_job``."""
 SELECTION_COLUMNS = {"target": object, "window": float, "split": object, "method": object, "repetition": "int64",
                      "point": "int64", "resample": "int64", "score": float, "criterion": object, "chosen": bool}
 """The fixed columns of ``Run.selection_table`` (the ``param:<name>`` columns come after ``point``)."""
@@ -237,6 +249,10 @@ class Run:
     @property
     def jobs_dir(self) -> Path:
         return self.path / "jobs"
+
+    @property
+    def selection_dir(self) -> Path:
+        return self.path / SELECTION_DIR
 
     @property
     def store(self) -> Path:
@@ -432,8 +448,9 @@ class Run:
         self.check_plugins("resumed")
         self.lock()
         try:
-            for stale in self.jobs_dir.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
-                stale.unlink(missing_ok=True)
+            for folder in (self.jobs_dir, self.selection_dir):
+                for stale in folder.glob(".*.tmp"):  # a write cut short by a kill: never a finished job
+                    stale.unlink(missing_ok=True)
             damaged = self.damaged_jobs()
             finished = self.finished_jobs(verify=False) - set(damaged)
         except BaseException:
@@ -478,10 +495,33 @@ class Run:
         out = {}
         for p in self.job_files():
             try:
-                self._load_job(p, frame=False)
+                meta = self._load_job(p, frame=False)[1]
             except READ_ERRORS as exc:
                 out[p.stem] = _damage(exc)
+                continue
+            why = self._selection_bytes(p.stem, meta)[1]
+            if why is not None:
+                out[p.stem] = why
         return out
+
+    def _selection_bytes(self, key: str, meta: dict[str, Any]) -> tuple[bytes | None, str | None]:
+        """(the selection file's bytes, None) when the job recorded one and it is intact, (None, why) when it
+        is damaged, (None, None) when the job has no selection table."""
+        record = meta.get("selection_file")
+        if record is None:
+            return None, None
+        path = self.selection_dir / f"{key}.parquet"
+        if not isinstance(record, dict) or not isinstance(record.get("sha256"), str):
+            return None, "its record of the selection table is garbled"
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            return None, f"its selection table {path} is missing"
+        except OSError as exc:
+            return None, f"its selection table {path} is unreadable ({_damage(exc)})"
+        if hashlib.sha256(data).hexdigest() != record["sha256"]:
+            return None, f"its selection table {path} does not match the SHA-256 recorded in the job file"
+        return data, None
 
     def finished_jobs(self, verify: bool = True) -> set[str]:
         """Keys of the jobs whose files are complete and readable.
@@ -495,12 +535,36 @@ class Run:
         return keys - set(self.damaged_jobs()) if verify else keys
 
     def write_job(self, key: str, rows: pd.DataFrame, meta: dict[str, Any]) -> Path:
-        """Write one finished job's metric rows and metadata atomically (StoreError on a failed write)."""
+        """Write one finished job's metric rows and metadata atomically (StoreError on a failed write).
+
+        A selection table in ``meta`` (a DataFrame under ``SELECTION_META``) becomes the file
+        ``selection/<key>.parquet``, its SHA-256 and row count recorded in the job's metadata
+        (``selection_file``). The job file is written first, then the table; when the
+        table's write fails the job file is removed again, so a job is finished only with
+        both (a kill between the two leaves a job that ``damaged_jobs`` lists).
+        """
+        meta = dict(meta)
+        selection = meta.pop(SELECTION_META, None)
+        data = None
+        if isinstance(selection, pd.DataFrame) and len(selection):
+            data = _table_bytes(pa.Table.from_pandas(selection, preserve_index=False))
+            meta["selection_file"] = {"sha256": hashlib.sha256(data).hexdigest(), "rows": len(selection)}
         table = pa.Table.from_pandas(rows, preserve_index=False)
         table = table.replace_schema_metadata({**(table.schema.metadata or {}), JOB_META_KEY: json.dumps(_jsonable(meta)).encode()})
         path = self.jobs_dir / f"{key}.parquet"
+        selection_path = self.selection_dir / f"{key}.parquet"
         with self._writing():
             self._write(path, _table_bytes(table), f"job {key} of run {self.id} to")
+            if data is None:
+                with contextlib.suppress(OSError):  # an earlier attempt's table belongs to no job now
+                    selection_path.unlink(missing_ok=True)
+                return path
+            try:
+                self._write(selection_path, data, f"the selection table of job {key} of run {self.id} to")
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    path.unlink(missing_ok=True)  # not finished without its table
+                raise
         return path
 
     def write_table(self, relative: str, frame: pd.DataFrame) -> Path:
@@ -546,14 +610,59 @@ class Run:
                 out["warnings"][key] = out["warnings"].get(key, 0) + 1
         return out
 
+    def job_metas(self) -> dict[str, dict[str, Any]]:
+        """Job key -> metadata of every readable job file (damaged files are left out: ``damaged_jobs`` names them)."""
+        out = {}
+        for path in self.job_files():
+            try:
+                out[path.stem] = self._load_job(path, frame=False)[1]
+            except READ_ERRORS:
+                continue
+        return out
+
     def selection_table(self, job_key: str | None = None) -> pd.DataFrame:
         """The model-selection scores of the run's jobs (one job's with ``job_key``), one row per grid point and resample.
 
-        Columns: ``SELECTION_COLUMNS`` with one ``param:<name>`` column per hyperparameter
-        after ``point``. An empty frame with the fixed columns when the run stored none
-        (methods with nothing to select, runs made before tables were stored).
+        Columns: target, window, split, method, repetition (the job's coordinates), point
+        (index in the grid's order), one ``param:<name>`` column per hyperparameter (float,
+        or text for non-numeric values; empty where a job's method lacks the parameter),
+        resample (index of the bootstrap resample or fold; 0 for a validation part), score
+        (the criterion, +inf for non-finite predictions), criterion (its name) and chosen
+        (True on every row of the selected point). An empty frame with the fixed columns
+        (``SELECTION_COLUMNS``) when there is none: methods with nothing to select, runs
+        made before tables were stored. A damaged or missing table is a StoreError naming
+        its file.
         """
-        return pd.DataFrame({c: pd.Series(dtype=t) for c, t in SELECTION_COLUMNS.items()})
+        if job_key is None:
+            paths = self.job_files()
+        else:
+            paths = [self.jobs_dir / f"{job_key}.parquet"]
+            if not paths[0].is_file():
+                raise StoreError(f"run {self.id}: job {job_key} has no file {paths[0]}; {self._resume_hint()}")
+        frames = []
+        for path in paths:
+            try:
+                meta = self._load_job(path, frame=False)[1]
+            except READ_ERRORS as exc:
+                raise StoreError(f"run {self.id}: job file {path} is damaged ({_damage(exc)}); the other jobs are "
+                                 f"intact: `enginebench run --resume {self.id}` recomputes this one") from None
+            data, why = self._selection_bytes(path.stem, meta)
+            if why is None and data is not None:
+                try:
+                    frames.append(pq.read_table(pa.BufferReader(data), page_checksum_verification=True).to_pandas())
+                except READ_ERRORS as exc:
+                    why = f"its selection table {self.selection_dir / path.name} is damaged ({_damage(exc)})"
+            if why is not None:
+                raise StoreError(f"run {self.id}: job {path.stem}: {why}; its metrics are intact: "
+                                 f"`enginebench run --resume {self.id}` recomputes the job")
+        empty = pd.DataFrame({c: pd.Series(dtype=t) for c, t in SELECTION_COLUMNS.items()})
+        if not frames:
+            return empty
+        out = pd.concat(frames, ignore_index=True)
+        params = [c for c in out.columns if c.startswith("param:")]
+        fixed = list(SELECTION_COLUMNS)
+        at = fixed.index("point") + 1
+        return out[fixed[:at] + params + fixed[at:]].astype({c: t for c, t in SELECTION_COLUMNS.items() if t is not object})
 
     def metrics(self) -> pd.DataFrame:
         """All metric rows of all finished jobs (one long frame); a damaged job file is refused by name."""
