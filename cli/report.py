@@ -65,15 +65,22 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
 @click.option("--report/--no-report", "with_report", default=False, show_default=True,
               help="Also log the HTML report (tables only, no figures with --no-figures) under report/.")
 @click.option("--figures/--no-figures", default=True, show_default=True, help="With --report: draw its figures.")
+@click.option("--replace", is_flag=True, default=False,
+              help="The MLflow experiment already holds RUN: log it again and delete the earlier export "
+                   "(refused without this flag).")
 @store_option
 @plugin_option
-def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figures: bool, store, plugins) -> None:
-    """Log RUN to an MLflow tracking store as one MLflow run.
+def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figures: bool, replace: bool, store,
+           plugins) -> None:
+    """Log RUN to an MLflow tracking store: one parent MLflow run and one child run per method.
 
-    Params: the config and the hyperparameters selected per repetition. Metrics per
-    split/target/window/method/metric: mean, ci_low, ci_high and the per-repetition values
-    (step = repetition). Artefacts: config.toml, environment.json, run.json, table.csv,
-    selected_hyperparameters.csv (and the report). Needs: pip install "enginebench[mlflow]".
+    Parent: the config as params, the run's tags and artefacts (config.toml,
+    environment.json, run.json, table.csv, selected_hyperparameters.csv, the report).
+    Children (one per method, nested): params method, family, dataset, mode and the
+    selected hyperparameters (most frequent pick); the table's metrics under the same keys
+    in every child (mae, mae_ci_low, ... or mae/TARGET/dWINDOW/PART), so MLflow's compare
+    view lines the methods up. Exporting RUN again is refused unless --replace.
+    Needs: pip install "enginebench[mlflow]".
     """
     import tempfile
 
@@ -94,7 +101,10 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
             for note in written.notes:
                 click.echo(f"note: {note}", err=True)
             report_dir = tmp
-        result = export_run(run, tracking_uri, experiment=experiment, report_dir=report_dir)
+        result = export_run(run, tracking_uri, experiment=experiment, report_dir=report_dir, replace=replace)
     click.echo(f"exported run {run.id} to {result.tracking_uri}: experiment {result.experiment_id}, "
-               f"MLflow run {result.mlflow_run_id} ({len(result.params)} params, {result.n_metric_values} metric values, "
+               f"parent MLflow run {result.mlflow_run_id} with {len(result.child_run_ids)} child runs "
+               f"({', '.join(result.child_run_ids)}; {result.n_params} params, {result.n_metric_values} metric values, "
                f"artefacts {', '.join(result.artifacts)})")
+    if result.replaced:
+        click.echo(f"replaced the earlier export (deleted parent run {', '.join(result.replaced)} and its child runs)")

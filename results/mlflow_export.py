@@ -1,39 +1,64 @@
 """Export a stored run to an MLflow tracking store (optional dependency: ``pip install "enginebench[mlflow]"``).
 
-One enginebench run becomes one MLflow run (named by the run id) in an MLflow experiment
-named after the enginebench experiment, holding:
+Layout, in the MLflow experiment named after the enginebench experiment (or ``experiment=``):
 
-- params: the resolved config flattened to dotted keys (``config.split.kind``), and the
-  hyperparameters each job selected, one param per (target, window, split, method,
-  hyperparameter) whose value is the JSON list over repetitions 0, 1, ...;
-- metrics, per (split, target, window, method, metric), under the key
-  ``SPLIT/TARGET/wWINDOW/METHOD/METRIC/``: the mean over repetitions (as in the comparison
-  table) as ``.../mean``, its interval as ``.../ci_low`` and ``.../ci_high``, and each
-  repetition's value as ``.../repetitions`` with step = repetition (a file store keeps a
-  key as a file, so no key is a prefix of another); numeric selected hyperparameters also as
-  ``selected/TARGET/wWINDOW/SPLIT/METHOD/NAME`` with step = repetition;
-- artefacts: config.toml, environment.json, run.json, the long table (table.csv), the
-  selected hyperparameters per job (selected_hyperparameters.csv) and, on request, the
-  HTML report under ``report/``.
+- one **parent** MLflow run per enginebench run, named ``NAME [RUN_ID]``; tags
+  ``enginebench.run_id``, ``enginebench.experiment``, ``enginebench.dataset``,
+  ``enginebench.config_hash``, ``enginebench.status``, ``enginebench.mode``, the git commit
+  (``mlflow.source.git.commit``) and the enginebench/Python versions; params: the resolved
+  config flattened to dotted keys (``mode``, ``windows``, ``repetitions``, ``split.kind``,
+  ``selection.kind``, ``method_options.krls.gamma_grid``...); metrics ``n_jobs``,
+  ``finished_jobs``, ``failed_jobs``; artefacts config.toml, environment.json, run.json, the
+  long table (table.csv), the selected hyperparameters per job (selected_hyperparameters.csv)
+  and, on request, the HTML report under ``report/``;
+- one **child** run per method, nested under the parent (tag ``mlflow.parentRunId``), named
+  by the method; params ``method``, ``family``, ``dataset`` (the name the tables show),
+  ``mode`` and the selected hyperparameters; metrics from the comparison table.
 
-MLflow keys allow letters, digits, ``_ - . : /`` and spaces; other characters of method
-names (``moe[ideal]``) become ``_``, and a clash between two sanitised keys is refused.
-MLflow 3 refuses a local file store unless ``MLFLOW_ALLOW_FILE_STORE`` is set; a
-``file:`` URI (or a plain folder) asked for explicitly sets it for this process unless
-the variable is already set.
+Keys line up across the children, so MLflow's compare view puts methods side by side.
+When the run has one (target, window, scored part), metrics are plain: ``mae``,
+``mae_ci_low``, ``mae_ci_high``, ``n_failed``, ``n_diverged``; otherwise each carries the
+cell, ``mae/TARGET/dWINDOW/PART`` (``mae_ci_low/TARGET/dWINDOW/PART``...). Every child gets
+every key of the run: a cell a method has no number for (all repetitions failed, an
+interval that does not exist) is logged as NaN, as the table shows it.
+
+Selected hyperparameters: a job's pick can differ between repetitions, so a child logs per
+(target, window, split) and hyperparameter the most frequent pick (a tie goes to the pick
+of the earliest repetition), as ``gamma`` when the run has one (target, window, split),
+else ``gamma/TARGET/dWINDOW`` (``.../SPLIT`` added with several splits); the tag
+``enginebench.picks.KEY`` holds how often each value was picked (JSON ``{value: count}``).
+A pick whose name is one of the fixed params (``method``...) is logged as ``param.NAME``.
+
+Keys follow MLflow's rules: letters, digits, ``_ - . /`` and spaces (other characters, and
+``/`` inside a name, become ``_``; ``:`` too, which Windows refuses), at most 250
+characters (a longer key is cut and ends in ``~`` and 8 hex digits of its hash); a clash
+between two sanitised keys is refused.
+
+Exporting a run that the experiment already holds (a parent with the same
+``enginebench.run_id``) is refused unless ``replace=True`` (``--replace``): the new export
+is logged first, then the earlier parent and its children are deleted (MLflow keeps
+deleted runs until ``mlflow gc``). A failed export deletes what it had logged.
+
+MLflow 3 refuses a local file store unless ``MLFLOW_ALLOW_FILE_STORE`` is set; a ``file:``
+URI (or a plain folder) asked for explicitly sets it for this process unless the variable
+is already set. MLflow's usage telemetry is turned off (``MLFLOW_DISABLE_TELEMETRY``) unless
+the variable is set: the toolkit makes no network calls of its own accord.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import re
 import tempfile
 import time
+import urllib.error
+import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import pandas as pd
 
@@ -44,14 +69,53 @@ from enginebench.results.store import Run
 INSTALL_HINT = 'pip install "enginebench[mlflow]"'
 MAX_PARAM_CHARS = 6000
 """MLflow's limit on a param value; longer values are cut (the csv artefact holds them whole)."""
+MAX_TAG_CHARS = 8000
+MAX_KEY_CHARS = 250
+"""MLflow's limit on a param, metric or tag key."""
 BATCH = 900
 """Entities per log_batch call (MLflow accepts at most 1000 metrics, 100 params)."""
 PARAM_BATCH = 100
-_KEY_BAD = re.compile(r"[^\w\-. :/]")
+FIXED_PARAMS = ("method", "family", "dataset", "mode")
+"""The params every child run has; a selected hyperparameter of the same name becomes ``param.NAME``."""
+PROBE_TIMEOUT_S = 10.0
+_KEY_BAD = re.compile(r"[^\w\-. /]")
+_PART_BAD = re.compile(r"[^\w\-. ]")
+_SQL_SCHEMES = ("sqlite", "postgresql", "mysql", "mssql")
 
 
 class MissingDependency(EngineBenchError):
     """An optional dependency needed by the command is not installed."""
+
+
+class ExportError(EngineBenchError):
+    """The MLflow tracking store cannot be used, refused a write, or already holds the run."""
+
+
+@dataclass
+class ChildRun:
+    """What one method's child run holds."""
+
+    method: str
+    params: dict[str, str]
+    tags: dict[str, str]
+    metrics: dict[str, float]
+    status: str
+
+
+@dataclass
+class Layout:
+    """The MLflow runs one enginebench run becomes: the parent's content and one child per method."""
+
+    run_name: str
+    params: dict[str, str]
+    tags: dict[str, str]
+    metrics: dict[str, float]
+    status: str
+    children: list[ChildRun]
+    table: pd.DataFrame = field(repr=False, default_factory=pd.DataFrame)
+    """The summary the metrics come from (``tables.summarize``), logged as table.csv."""
+    selected: pd.DataFrame = field(repr=False, default_factory=pd.DataFrame)
+    """Every job's selected hyperparameters (``selected_frame``), logged as selected_hyperparameters.csv."""
 
 
 @dataclass
@@ -61,18 +125,28 @@ class ExportResult:
     tracking_uri: str
     experiment_id: str
     mlflow_run_id: str
+    """The parent run."""
+    child_run_ids: dict[str, str] = field(default_factory=dict)
+    """Method -> its child run."""
     params: dict[str, str] = field(default_factory=dict)
+    """The parent's params."""
+    n_params: int = 0
+    """Params logged over parent and children."""
     n_metric_values: int = 0
     artifacts: list[str] = field(default_factory=list)
+    replaced: list[str] = field(default_factory=list)
+    """Parent runs of earlier exports that were deleted (``replace=True``)."""
 
 
 def import_mlflow():
     """The ``mlflow`` module and ``MlflowClient``, or a MissingDependency saying how to install them."""
+    os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
     try:
         import mlflow
         from mlflow.tracking import MlflowClient
     except ImportError:
-        raise MissingDependency(f"MLflow export needs the mlflow package, which is not installed; {INSTALL_HINT}") from None
+        raise MissingDependency("MLflow export needs the mlflow package, which is not installed; "
+                                f"{INSTALL_HINT}") from None
     return mlflow, MlflowClient
 
 
@@ -81,8 +155,24 @@ def sanitize_key(text: str) -> str:
     return _KEY_BAD.sub("_", text)
 
 
-def resolve_uri(uri: str) -> str:
+def key_part(text: Any) -> str:
+    """One component of a key: characters MLflow refuses, and '/', become '_'; '', '.' and '..' become '_'."""
+    part = _PART_BAD.sub("_", str(text))
+    return "_" if part in ("", ".", "..") else part
+
+
+def mlflow_key(*parts: Any) -> str:
+    """Components joined by '/', each made safe; a key over 250 characters is cut and ends in '~' + a hash."""
+    key = "/".join(key_part(p) for p in parts)
+    if len(key) <= MAX_KEY_CHARS:
+        return key
+    digest = hashlib.sha256(key.encode("utf-8")).hexdigest()[:8]
+    return f"{key[: MAX_KEY_CHARS - 9].rstrip('/')}~{digest}"
+
+
+def resolve_uri(uri: str | Path) -> str:
     """A plain folder becomes a ``file:`` URI; other URIs pass through unchanged."""
+    uri = str(uri)
     if re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", uri) and not re.match(r"^[A-Za-z]:[\\/]", uri):
         return uri
     return Path(uri).expanduser().resolve().as_uri()
@@ -104,137 +194,327 @@ def _param_value(value: Any) -> str:
 
 
 def _window(w: float) -> str:
-    return f"w{float(w):g}"
+    return f"d{float(w):g}"
 
 
-def metric_key(split: str, target: str, window: float, method: str, metric: str) -> str:
-    """The MLflow key prefix of one summary cell: ``SPLIT/TARGET/wWINDOW/METHOD/METRIC`` (sanitised)."""
-    return sanitize_key(f"{split}/{target}/{_window(window)}/{method}/{metric}")
+def registry_family(method: str) -> str | None:
+    """The family of the registered method class named ``method``, or None when it cannot be imported."""
+    try:
+        from enginebench.methods import registry
+
+        return str(registry.get(method).family)
+    except Exception:  # noqa: BLE001 - unknown, broken or unimportable: the run's stored family is used
+        return None
 
 
-def selected_frame(run: Run) -> pd.DataFrame:
-    """One row per (job, hyperparameter) of the finished jobs: target, window, split, method, repetition, name, value."""
+def job_records(run: Run) -> pd.DataFrame:
+    """One row per finished job: method, family, target, window, split, repetition, status, params (flattened dict)."""
     rows = []
     for key in sorted(run.finished_jobs()):
         meta = run.job_meta(key)
-        if meta.get("status") != "ok":
-            continue
-        split = key.split("__")[2] if key.count("__") >= 4 else ""
-        for name, value in flatten(meta.get("params", {}) or {}).items():
-            rows.append({"target": meta.get("target"), "window": float(meta.get("window", 0.0)), "split": split,
-                         "method": meta.get("method"), "repetition": int(meta.get("repetition", -1)), "name": name,
-                         "value": json.dumps(value, default=str)})
+        parts = key.split("__")
+        rows.append({"method": str(meta.get("method")), "family": meta.get("family"), "target": str(meta.get("target")),
+                     "window": float(meta.get("window", 0.0)), "split": parts[2] if len(parts) >= 5 else "",
+                     "repetition": int(meta.get("repetition", -1)), "status": meta.get("status"),
+                     "params": flatten(meta.get("params", {}) or {}) if meta.get("status") == "ok" else {}})
+    return pd.DataFrame(rows, columns=["method", "family", "target", "window", "split", "repetition", "status",
+                                       "params"])
+
+
+def selected_frame(run: Run, jobs: pd.DataFrame | None = None) -> pd.DataFrame:
+    """One row per (successful job, hyperparameter): target, window, split, method, repetition, name, value (JSON)."""
+    jobs = job_records(run) if jobs is None else jobs
+    rows = [{"target": j.target, "window": j.window, "split": j.split, "method": j.method, "repetition": j.repetition,
+             "name": name, "value": json.dumps(value, default=str)}
+            for j in jobs.itertuples(index=False) for name, value in j.params.items()]
     return pd.DataFrame(rows, columns=["target", "window", "split", "method", "repetition", "name", "value"])
 
 
-def _repetition_values(raw: pd.DataFrame) -> pd.DataFrame:
-    """The per-repetition rows behind the summary: finished, scored, finite, with paired skill rows added."""
-    ok = raw[(raw["status"] == "ok") & (raw["split"] != "-") & ~raw["metric"].isin(["n", "n_segments"])]
-    return tables.with_skill(ok.dropna(subset=["value"]))
+def most_frequent_picks(selected: pd.DataFrame) -> pd.DataFrame:
+    """Per (method, target, window, split, name): the most frequent value (ties: the earliest repetition's pick).
+
+    Columns: method, target, window, split, name, value (JSON), count, of (repetitions
+    with a pick) and counts (JSON ``{value: count}``, most frequent first).
+    """
+    cols = ["method", "target", "window", "split", "name"]
+    if selected.empty:
+        return pd.DataFrame(columns=cols + ["value", "count", "of", "counts"])
+    tally = (selected.groupby(cols + ["value"], sort=False)
+             .agg(count=("repetition", "size"), first=("repetition", "min")).reset_index()
+             .sort_values(["count", "first"], ascending=[False, True], kind="stable"))
+    rows = []
+    for key, group in tally.groupby(cols, sort=True):
+        counts = {_param_value(json.loads(v)): int(n) for v, n in zip(group["value"], group["count"])}
+        rows.append((*key, group["value"].iloc[0], int(group["count"].iloc[0]), int(group["count"].sum()),
+                     json.dumps(counts)))
+    return pd.DataFrame(rows, columns=cols + ["value", "count", "of", "counts"])
 
 
-def _checked(keys: Iterable[tuple[str, str]]) -> None:
+def _families(jobs: pd.DataFrame, raw: pd.DataFrame, family_of: Callable[[str], str | None]) -> dict[str, str]:
+    stored: dict[str, str] = {}
+    if "family" in raw.columns:
+        stored.update(raw.dropna(subset=["family"]).groupby("method")["family"].first().astype(str).to_dict())
+    stored.update(jobs.dropna(subset=["family"]).groupby("method")["family"].first().astype(str).to_dict())
+    methods = set(jobs["method"]) | set(raw["method"].astype(str))
+    return {m: family_of(m) or stored.get(m, "") for m in methods}
+
+
+def _checked(keys: Iterable[tuple[str, str]], where: str) -> None:
     seen: dict[str, str] = {}
     for safe, original in keys:
         if safe in seen and seen[safe] != original:
-            raise EngineBenchError(f"MLflow keys clash after sanitising: {seen[safe]!r} and {original!r} both become "
-                                   f"{safe!r}; rename one of the methods")
+            raise ExportError(f"MLflow keys clash after sanitising in {where}: {seen[safe]!r} and {original!r} both "
+                              f"become {safe!r}; rename one of them")
         seen[safe] = original
+
+
+def _cell_metrics(summary: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Method -> {metric key: value} from the summary, every child with every key (NaN where a method has none)."""
+    cells = summary[["target", "window", "split"]].drop_duplicates()
+    single = len(cells) == 1
+    suffix = (lambda t, w, s: ()) if single else (lambda t, w, s: (t, _window(w), s))  # noqa: E731
+    values: dict[str, dict[str, float]] = {m: {} for m in summary["method"].astype(str).unique()}
+    origin: list[tuple[str, str]] = []
+
+    def put(method: str, name: str, t: str, w: float, s: str, value: Any) -> None:
+        key = mlflow_key(name, *suffix(t, w, s))
+        origin.append((key, "/".join([name, *map(str, suffix(t, w, s))])))
+        values[method][key] = float(value) if value is not None and not pd.isna(value) else math.nan
+
+    for r in summary[summary["metric"] != "diverged"].itertuples(index=False):  # counted by n_diverged
+        put(r.method, r.metric, r.target, r.window, r.split, r.mean)
+        put(r.method, f"{r.metric}_ci_low", r.target, r.window, r.split, r.ci_low)
+        put(r.method, f"{r.metric}_ci_high", r.target, r.window, r.split, r.ci_high)
+    counts = summary.groupby(["method", "target", "window", "split"], sort=True)[["n_failed", "n_diverged"]].max()
+    for (method, t, w, s), r in counts.iterrows():
+        put(method, "n_failed", t, w, s, r["n_failed"])
+        put(method, "n_diverged", t, w, s, r["n_diverged"])
+    _checked(origin, "the metric keys")
+    every = sorted({k for v in values.values() for k in v})
+    return {m: {k: v.get(k, math.nan) for k in every} for m, v in values.items()}
+
+
+def _pick_params(picks: pd.DataFrame, jobs: pd.DataFrame) -> dict[str, tuple[dict[str, str], dict[str, str]]]:
+    """Method -> (params, tags) of its selected hyperparameters (see the module docstring for the keys)."""
+    cells = jobs[["target", "window", "split"]].drop_duplicates()
+    single, one_split = len(cells) == 1, cells["split"].nunique() <= 1
+    out: dict[str, tuple[dict[str, str], dict[str, str]]] = {}
+    origin: dict[str, list[tuple[str, str]]] = {}
+    for p in picks.itertuples(index=False):
+        name = f"param.{p.name}" if p.name in FIXED_PARAMS else p.name
+        where = () if single else (p.target, _window(p.window)) if one_split else (p.target, _window(p.window), p.split)
+        key = mlflow_key(name, *where)
+        params, tags = out.setdefault(p.method, ({}, {}))
+        origin.setdefault(p.method, []).append((key, "/".join(map(str, (name, *where)))))
+        params[key] = _param_value(json.loads(p.value))
+        tags[mlflow_key(f"enginebench.picks.{name}", *where)] = p.counts[:MAX_TAG_CHARS]
+    for method, keys in origin.items():
+        _checked(keys, f"the selected hyperparameters of {method!r}")
+    return out
+
+
+def build_layout(run: Run, *, interval: str | None = None,
+                 family_of: Callable[[str], str | None] = registry_family) -> Layout:
+    """The parent and child runs ``run`` becomes (see the module docstring), computed from the stored run alone.
+
+    ``family_of``: a method's family (default: its registered class); None falls back to
+    the family the run stored with each job.
+    """
+    cfg, info, env = run.config(), run.info(), run.environment()
+    raw = run.metrics()
+    summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
+    jobs = job_records(run)
+    selected = selected_frame(run, jobs)
+    picks = most_frequent_picks(selected)
+    families = _families(jobs, raw, family_of)
+    metrics = _cell_metrics(summary)
+    hyper = _pick_params(picks, jobs)
+    dataset = str(summary["dataset"].iloc[0]) if len(summary) else str(cfg.get("dataset", ""))
+    mode = str(cfg.get("mode", ""))
+    name = str(cfg.get("name") or info.get("name") or run.id)
+
+    params: dict[str, str] = {}
+    origin = []
+    for k, v in flatten(cfg).items():
+        key = mlflow_key(k)
+        origin.append((key, k))
+        params[key] = _param_value(v)
+    _checked(origin, "the config params")
+    tags = {"enginebench.run_id": run.id, "enginebench.experiment": name, "enginebench.dataset": dataset,
+            "enginebench.config_hash": str(info.get("config_hash", "")),
+            "enginebench.status": str(info.get("status", "")), "enginebench.mode": mode}
+    if env.get("git_commit"):
+        tags["mlflow.source.git.commit"] = str(env["git_commit"])
+    for label, value in (("enginebench.version", (env.get("packages") or {}).get("enginebench")),
+                         ("enginebench.python", env.get("python"))):
+        if value:
+            tags[label] = str(value)
+    parent_metrics = {k: float(info[k]) for k in ("n_jobs", "finished_jobs", "failed_jobs")
+                      if isinstance(info.get(k), (int, float)) and not isinstance(info.get(k), bool)}
+
+    order = [str(m) for m in cfg.get("methods", []) if isinstance(m, str)]
+    methods = [m for m in order if m in metrics] + sorted(m for m in metrics if m not in order)
+    children = []
+    for method in methods:
+        p_params, p_tags = hyper.get(method, ({}, {}))
+        ok = bool(((jobs["method"] == method) & (jobs["status"] == "ok")).any())
+        children.append(ChildRun(
+            method=method,
+            params={"method": method, "family": families.get(method, ""), "dataset": dataset, "mode": mode, **p_params},
+            tags={"enginebench.run_id": run.id, "enginebench.method": method, **p_tags},
+            metrics=metrics[method], status="FINISHED" if ok else "FAILED"))
+    return Layout(run_name=f"{name} [{run.id}]", params=params, tags=tags, metrics=parent_metrics,
+                  status="FINISHED" if info.get("status") == "finished" else "KILLED", children=children,
+                  table=summary, selected=selected)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return " ".join(text.splitlines()[0].split()) if text else type(exc).__name__
+
+
+def _probe_server(uri: str) -> None:
+    """A server URI that refuses connections is one ExportError now, not minutes of MLflow's retries."""
+    try:
+        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=PROBE_TIMEOUT_S):
+            pass
+    except urllib.error.HTTPError:
+        return  # it answered: reachable (authentication and paths are MLflow's business)
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise ExportError(f"cannot reach the MLflow server at {uri} ({_first_line(reason)}); start it (mlflow server) "
+                          "or check the --mlflow URI") from None
+
+
+def _client(uri: str, MlflowClient):
+    """An MlflowClient for ``uri``, or one ExportError saying why the URI cannot be used."""
+    scheme = uri.split(":", 1)[0].lower()
+    if scheme in ("http", "https"):
+        _probe_server(uri)
+    try:
+        return MlflowClient(tracking_uri=uri)
+    except Exception as exc:  # noqa: BLE001 - unsupported scheme, missing SQL driver: one line for the user
+        if "unsupported uri" in str(exc).lower():
+            reason = f"the installed mlflow has no tracking store for the scheme {scheme!r}"
+            if scheme.split("+")[0] in _SQL_SCHEMES:
+                reason += " (database stores need the full mlflow package with SQLAlchemy: pip install mlflow)"
+        else:
+            reason = _first_line(exc)[:300]
+        raise ExportError(f"MLflow cannot use the tracking URI {uri}: {reason}; give a server (http://HOST:PORT), "
+                          "a local folder or a file: URI") from None
+
+
+def _search_all(client, experiment_id: str, query: str) -> list:
+    found, token = [], None
+    while True:
+        page = client.search_runs([experiment_id], query, max_results=1000, page_token=token)
+        found += list(page)
+        token = getattr(page, "token", None)
+        if not token:
+            return found
+
+
+def _quoted(text: str) -> str:
+    return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def _log(client, run_id: str, params: dict[str, str], metrics: dict[str, float], now: int) -> int:
+    from mlflow.entities import Metric, Param
+
+    items = list(params.items())
+    for i in range(0, len(items), PARAM_BATCH):
+        client.log_batch(run_id, params=[Param(k, v) for k, v in items[i:i + PARAM_BATCH]])
+    values = list(metrics.items())
+    for i in range(0, len(values), BATCH):
+        client.log_batch(run_id, metrics=[Metric(k, v, now, 0) for k, v in values[i:i + BATCH]])
+    return len(values)
 
 
 def export_run(
     run: Run,
-    tracking_uri: str,
+    tracking_uri: str | Path,
     *,
     experiment: str | None = None,
     interval: str | None = None,
     report_dir: str | Path | None = None,
+    replace: bool = False,
+    family_of: Callable[[str], str | None] = registry_family,
 ) -> ExportResult:
-    """Log ``run`` to the MLflow tracking store at ``tracking_uri`` as a new MLflow run; see the module docstring.
+    """Log ``run`` to the MLflow tracking store at ``tracking_uri``: a parent run and a child per method.
 
-    ``report_dir``: a folder written by ``write_report``, logged under ``report/``.
+    See the module docstring for the layout. ``report_dir``: a folder written by
+    ``write_report``, logged under ``report/``. ``replace``: delete an earlier export of
+    the same run in the same MLflow experiment (refused without it).
     """
     uri = resolve_uri(tracking_uri)
     if uri.startswith("file:"):
         os.environ.setdefault("MLFLOW_ALLOW_FILE_STORE", "true")
     _, MlflowClient = import_mlflow()
-    from mlflow.entities import Metric, Param
     from mlflow.exceptions import MlflowException
+    from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
 
-    cfg, info, env = run.config(), run.info(), run.environment()
-    raw = run.metrics()
-    summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
-    per_rep = _repetition_values(raw)
-    selected = selected_frame(run)
-
-    params: dict[str, str] = {}
-    origin: list[tuple[str, str]] = []
-    for k, v in flatten(cfg).items():
-        key = sanitize_key(f"config.{k}")
-        origin.append((key, f"config.{k}"))
-        params[key] = _param_value(v)
-    for (target, window, split, method, name), group in selected.groupby(
-            ["target", "window", "split", "method", "name"], sort=True):
-        raw_key = f"selected/{target}/{_window(window)}/{split}/{method}/{name}"
-        key = sanitize_key(raw_key)
-        origin.append((key, raw_key))
-        values = [json.loads(v) for v in group.sort_values("repetition")["value"]]
-        params[key] = _param_value(values)
-
-    now = int(time.time() * 1000)
-    metrics: list[tuple[str, float, int]] = []
-    for r in summary.itertuples(index=False):
-        base = metric_key(r.split, r.target, r.window, r.method, r.metric)
-        origin.append((base, f"{r.split}/{r.target}/{_window(r.window)}/{r.method}/{r.metric}"))
-        for suffix, value in (("/mean", r.mean), ("/ci_low", r.ci_low), ("/ci_high", r.ci_high)):
-            if value is not None and math.isfinite(float(value)):
-                metrics.append((base + suffix, float(value), 0))
-    for r in per_rep.itertuples(index=False):
-        if not math.isfinite(float(r.value)):
-            continue
-        metrics.append((metric_key(r.split, r.target, r.window, r.method, r.metric) + "/repetitions", float(r.value),
-                        int(r.repetition)))
-    for r in selected.itertuples(index=False):
-        value = json.loads(r.value)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            metrics.append((sanitize_key(f"selected/{r.target}/{_window(r.window)}/{r.split}/{r.method}/{r.name}"),
-                            float(value), int(r.repetition)))
-    _checked(origin)
-
-    tags = {"enginebench.run_id": run.id, "enginebench.config_hash": str(info.get("config_hash", "")),
-            "enginebench.dataset": str(cfg.get("dataset", "")), "enginebench.status": str(info.get("status", "")),
-            "enginebench.mode": str(cfg.get("mode", ""))}
-    if env.get("git_commit"):
-        tags["mlflow.source.git.commit"] = str(env["git_commit"])
-    name = experiment or str(cfg.get("name") or info.get("name") or run.id)
+    layout = build_layout(run, interval=interval, family_of=family_of)
+    name = experiment or layout.tags["enginebench.experiment"]
+    client = _client(uri, MlflowClient)
+    created: list[str] = []
     try:
-        client = MlflowClient(tracking_uri=uri)
         found = client.get_experiment_by_name(name)
+        if found is not None and found.lifecycle_stage != "active":
+            raise ExportError(f"MLflow experiment {name!r} at {uri} is deleted; restore it (mlflow experiments restore "
+                              f"--experiment-id {found.experiment_id}) or choose another with --experiment")
         experiment_id = found.experiment_id if found is not None else client.create_experiment(name)
-        mlrun = client.create_run(experiment_id, run_name=run.id, tags=tags)
-        run_id = mlrun.info.run_id
-        items = list(params.items())
-        for i in range(0, len(items), PARAM_BATCH):
-            client.log_batch(run_id, params=[Param(k, v) for k, v in items[i:i + PARAM_BATCH]])
-        for i in range(0, len(metrics), BATCH):
-            client.log_batch(run_id, metrics=[Metric(k, v, now, s) for k, v, s in metrics[i:i + BATCH]])
-        artifacts = []
-        for fname in ("config.toml", "environment.json", "run.json"):
-            if (run.path / fname).is_file():
-                client.log_artifact(run_id, str(run.path / fname))
-                artifacts.append(fname)
-        with tempfile.TemporaryDirectory(prefix="enginebench-mlflow-") as tmp:
-            (Path(tmp) / "table.csv").write_text(tables.to_csv(summary), encoding="utf-8")
-            selected.to_csv(Path(tmp) / "selected_hyperparameters.csv", index=False)
-            for fname in ("table.csv", "selected_hyperparameters.csv"):
-                client.log_artifact(run_id, str(Path(tmp) / fname))
-                artifacts.append(fname)
-        if report_dir is not None:
-            client.log_artifacts(run_id, str(report_dir), artifact_path="report")
-            artifacts.append("report/")
-        client.set_terminated(run_id, "FINISHED" if info.get("status") == "finished" else "KILLED")
-    except MlflowException as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise EngineBenchError(f"MLflow ({uri}): {first}") from None
-    return ExportResult(tracking_uri=uri, experiment_id=experiment_id, mlflow_run_id=run_id, params=params,
-                        n_metric_values=len(metrics), artifacts=artifacts)
+        earlier = _search_all(client, experiment_id, f"tags.`enginebench.run_id` = {_quoted(run.id)}")
+        earlier_parents = [r.info.run_id for r in earlier if MLFLOW_PARENT_RUN_ID not in r.data.tags]
+        if earlier and not replace:
+            which = ", ".join(earlier_parents) or earlier[0].info.run_id
+            raise ExportError(f"run {run.id} is already exported to MLflow experiment {name!r} at {uri} (parent run "
+                              f"{which}); pass --replace to log it again and delete that export")
+        now = int(time.time() * 1000)
+        parent = client.create_run(experiment_id, run_name=layout.run_name, tags=layout.tags).info.run_id
+        created.append(parent)
+        n_metrics = _log(client, parent, layout.params, layout.metrics, now)
+        n_params = len(layout.params)
+        children: dict[str, str] = {}
+        for child in layout.children:
+            cid = client.create_run(experiment_id, run_name=child.method,
+                                    tags={**child.tags, MLFLOW_PARENT_RUN_ID: parent}).info.run_id
+            created.append(cid)
+            children[child.method] = cid
+            n_metrics += _log(client, cid, child.params, child.metrics, now)
+            n_params += len(child.params)
+            client.set_terminated(cid, child.status)
+        artifacts = _log_artifacts(client, parent, run, layout, report_dir)
+        client.set_terminated(parent, layout.status)
+        for old in earlier:  # only once the new export is complete
+            client.delete_run(old.info.run_id)
+    except (MlflowException, OSError, ExportError) as exc:
+        for run_id in reversed(created):  # leave no half export behind (best effort: the store may be gone)
+            try:
+                client.delete_run(run_id)
+            except Exception:  # noqa: BLE001
+                pass
+        if isinstance(exc, ExportError):
+            raise
+        raise ExportError(f"MLflow ({uri}): {_first_line(exc)}") from None
+    return ExportResult(tracking_uri=uri, experiment_id=experiment_id, mlflow_run_id=parent, child_run_ids=children,
+                        params=layout.params, n_params=n_params, n_metric_values=n_metrics, artifacts=artifacts,
+                        replaced=earlier_parents)
+
+
+def _log_artifacts(client, run_id: str, run: Run, layout: Layout, report_dir: str | Path | None) -> list[str]:
+    """The run's own files, the long table, the selected hyperparameters and the report, on the parent run."""
+    artifacts = []
+    for fname in ("config.toml", "environment.json", "run.json"):
+        if (run.path / fname).is_file():
+            client.log_artifact(run_id, str(run.path / fname))
+            artifacts.append(fname)
+    with tempfile.TemporaryDirectory(prefix="enginebench-mlflow-") as tmp:
+        (Path(tmp) / "table.csv").write_text(tables.to_csv(layout.table), encoding="utf-8")
+        layout.selected.to_csv(Path(tmp) / "selected_hyperparameters.csv", index=False)
+        for fname in ("table.csv", "selected_hyperparameters.csv"):
+            client.log_artifact(run_id, str(Path(tmp) / fname))
+            artifacts.append(fname)
+    if report_dir is not None:
+        client.log_artifacts(run_id, str(report_dir), artifact_path="report")
+        artifacts.append("report/")
+    return artifacts
