@@ -11,7 +11,7 @@ from enginebench.results.output import output_folder
 @click.command()
 @click.argument("run_ref", metavar="RUN", default="latest")
 @click.option("--output", "-o", "out_dir", type=click.Path(file_okay=False), required=True,
-              help="Folder for index.html, table.csv and the PNG figures.")
+              help="Folder for index.html, table.csv, the PNG figures and report.html (interactive).")
 @click.option("--metrics", default=None, help="Comma-separated metric columns of the table "
               "[default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
 @click.option("--paired", "paired_metric", default=None,
@@ -24,18 +24,21 @@ from enginebench.results.output import output_folder
 @click.option("--methods", default=None, help="Comma-separated methods to draw [default: all of the run's].")
 @click.option("--trajectories", "-n", type=click.IntRange(min=1), default=3, show_default=True,
               help="Simulation runs: how many trajectories (the longest of the part).")
+@click.option("--interactive/--no-interactive", default=True, show_default=True,
+              help="Also write report.html: one self-contained interactive page (needs enginebench[report]).")
 @store_option
 @plugin_option
 def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures: bool, repetition: int, part: str,
-           methods, trajectories: int, store, plugins) -> None:
+           methods, trajectories: int, interactive: bool, store, plugins) -> None:
     """Write an HTML report of RUN into DIR: tables, paired tests, settings and PNG figures.
 
     The figures need predictions, which a run does not store: the run's methods are
     re-fitted on one repetition's training rows with the hyperparameters the run selected
     (measured vs predicted scatters, time trends; simulation runs: trajectories with MoE
-    gate bands). A learning-curve run gets its curve instead.
+    gate bands). A learning-curve run gets its curve instead. report.html shows the same
+    re-fit as zoomable plots, with the table sortable, offline (plotly inlined).
     """
-    from enginebench.experiments.report import write_report
+    from enginebench.experiments.interactive_report import write_reports
     from enginebench.results.store import RunStore
 
     load_plugins(plugins)
@@ -50,11 +53,14 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
     if paired_metric:
         check_metrics([paired_metric], have, "--paired", run.id)
     output_folder(out_dir)
-    result = write_report(run, out_dir, metrics=cols, paired_metric=paired_metric, figures=figures,
-                          repetition=repetition, part=part, methods=chosen, trajectories=trajectories)
-    for note in result.notes:
+    result, page, notes = write_reports(run, out_dir, interactive=interactive, metrics=cols,
+                                        paired_metric=paired_metric, figures=figures, repetition=repetition,
+                                        part=part, methods=chosen, trajectories=trajectories)
+    for note in notes:
         click.echo(f"note: {note}", err=True)
     click.echo(f"wrote {result.index} ({len(result.figures)} figures)")
+    if page is not None:
+        click.echo(f"wrote {page.path} (interactive, {len(page.figures)} figures)")
 
 
 @click.command()

@@ -40,6 +40,8 @@ class PlotReport:
     notes: list[str] = field(default_factory=list)
     bands: dict[Path, str] = field(default_factory=dict)
     """Trajectory figure -> the method whose mixing weights are drawn as bands under it."""
+    simulated: list["Simulated"] = field(default_factory=list)
+    """The arrays drawn (``simulate_run``), for other views of the same re-fit."""
 
 
 def _safe(text: str) -> str:
@@ -56,16 +58,47 @@ def weights_of(method: Method, fitted: Any, data) -> list[np.ndarray] | None:
     return None if weights is None else [np.asarray(w, dtype=float) for w in weights]
 
 
-def plot_run(
+@dataclass
+class Simulated:
+    """One (target, window, split)'s re-fitted simulations of the trajectories shown, as arrays.
+
+    Lists run over the shown segments (in the part's order); ``sims`` and ``diverged``
+    hold only the methods that were re-fitted without error.
+    """
+
+    target: str
+    window: float
+    split: str
+    part: str
+    repetition: int
+    scale: float
+    """mean |y| over the repetition's training rows."""
+    segment_ids: list[str]
+    time: list[np.ndarray]
+    """Time stamps (seconds, the dataset's time axis) per shown segment."""
+    truth: list[np.ndarray]
+    inputs: list[dict[str, np.ndarray]]
+    sims: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    diverged: dict[str, np.ndarray] = field(default_factory=dict)
+    """Method -> one flag per shown segment (a simulation that left its envelope)."""
+    gate: list[np.ndarray] | None = None
+    gate_label: str = ""
+    """The method whose ``explain`` weights ``gate`` holds ('' when none declares them)."""
+
+
+def simulate_run(
     run: Run,
-    out_dir: str | Path,
     methods: list[str] | None = None,
     trajectories: int = 3,
     part: str = "test",
     repetition: int = 0,
     max_inputs: int = 3,
-) -> PlotReport:
-    """Write trajectory and scatter PNGs of ``run`` into ``out_dir``; returns the paths and notes."""
+) -> tuple[list[Simulated], list[str]]:
+    """Re-fit ``run``'s methods for one repetition and simulate the ``trajectories`` longest of ``part``.
+
+    Returns one ``Simulated`` per (target, window, split) with at least one method drawn,
+    and notes on the methods whose re-fit failed.
+    """
     spec = from_dict(run.config(), origin=f"run {run.id}")
     if spec.mode != "simulation":
         raise MethodError(f"run {run.id} is in mode {spec.mode!r}; trajectory plots are for simulation runs")
@@ -76,49 +109,69 @@ def plot_run(
         raise MethodError(f"run {run.id} did not run method(s) {', '.join(unknown)}; it ran {', '.join(ctx.methods)}")
     if trajectories < 1:
         raise MethodError(f"trajectories must be >= 1, got {trajectories}")
-    out = Path(out_dir)
-    report = PlotReport()
+    out: list[Simulated] = []
+    notes: list[str] = []
     for (target, window, split), problem in ctx.problems.items():
         if part not in problem.parts:
             raise MethodError(f"run {run.id}: split {split!r} has no {part!r} part; it has {', '.join(problem.parts)}")
         train = training_samples(spec, problem, repetition, split)
-        scale = float(np.mean(np.abs(train.y)))
         data = problem.parts[part].materialize()
         order = np.argsort([-len(s) for s in data.segments], kind="stable")[:trajectories]
         shown = data.take(np.concatenate([_segment_rows(data, int(k)) for k in sorted(order)]))
-        sims: dict[str, list[np.ndarray]] = {}
-        gate: list[np.ndarray] | None = None
-        gate_label = ""
+        sim = Simulated(target, window, split, part, repetition, float(np.mean(np.abs(train.y))),
+                        [s.id for s in shown.segments], [s.t[s.rows] for s in shown.segments],
+                        [s.y[:, 0] for s in shown.segments],
+                        [{c: s.U[s.rows, j] for j, c in enumerate(shown.input_names[:max_inputs])}
+                         for s in shown.segments])
         for name in chosen:
             job = Job(target, window, split, name, repetition)
             method = ctx.methods[name]
             try:
                 fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
                 preds = method.predict(fitted, shown.without_targets())
-                if gate is None:
-                    gate = weights_of(method, fitted, shown.without_targets())
-                    gate_label = name if gate is not None else ""
+                if sim.gate is None:
+                    sim.gate = weights_of(method, fitted, shown.without_targets())
+                    sim.gate_label = name if sim.gate is not None else ""
             except (EngineBenchError, ValueError, RuntimeError, FloatingPointError) as exc:
-                report.notes.append(f"{name}: not drawn ({type(exc).__name__}: {exc})")
+                notes.append(f"{name}: not drawn ({type(exc).__name__}: {exc})")
                 continue
-            sims[name] = [np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0] for p, s in zip(preds, shown.segments)]
-        if not sims:
-            continue
-        for k, seg in enumerate(shown.segments):
-            inputs = {c: seg.U[seg.rows, j] for j, c in enumerate(shown.input_names[:max_inputs])}
-            title = (f"{target} on {part} trajectory {seg.id}" + (f"; gate bands: {gate_label}" if gate_label else "")
+            sim.sims[name] = [np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0] for p, s in zip(preds, shown.segments)]
+            sim.diverged[name] = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), dtype=bool)), dtype=bool)
+        if sim.sims:
+            out.append(sim)
+    return out, notes
+
+
+def plot_run(
+    run: Run,
+    out_dir: str | Path,
+    methods: list[str] | None = None,
+    trajectories: int = 3,
+    part: str = "test",
+    repetition: int = 0,
+    max_inputs: int = 3,
+) -> PlotReport:
+    """Write trajectory and scatter PNGs of ``run`` into ``out_dir``; returns the paths and notes."""
+    simulated, notes = simulate_run(run, methods, trajectories, part, repetition, max_inputs)
+    out = Path(out_dir)
+    report = PlotReport(notes=notes, simulated=simulated)
+    for sim in simulated:
+        target, window, gate, gate_label = sim.target, sim.window, sim.gate, sim.gate_label
+        for k, seg_id in enumerate(sim.segment_ids):
+            title = (f"{target} on {part} trajectory {seg_id}" + (f"; gate bands: {gate_label}" if gate_label else "")
                      + f"\nrun {run.id}, repetition {repetition}, re-fitted")
-            path = out / f"{_safe(target)}__w{window:g}__{_safe(seg.id)}.png"
+            path = out / f"{_safe(target)}__w{window:g}__{_safe(seg_id)}.png"
             report.paths.append(trajectory_plot(
-                seg.t[seg.rows] - seg.t[seg.rows][0], seg.y[:, 0], {m: v[k] for m, v in sims.items()},
-                None if gate is None else gate[k], path, inputs=inputs, scale=scale, title=title, ylabel=target,
+                sim.time[k] - sim.time[k][0], sim.truth[k], {m: v[k] for m, v in sim.sims.items()},
+                None if gate is None else gate[k], path, inputs=sim.inputs[k], scale=sim.scale, title=title,
+                ylabel=target,
             ))
             if gate_label:
                 report.bands[report.paths[-1]] = gate_label
-        for name, values in sims.items():
+        for name, values in sim.sims.items():
             path = out / f"{_safe(target)}__w{window:g}__scatter__{_safe(name)}.png"
             report.paths.append(scatter_plot(
-                np.concatenate([s.y[:, 0] for s in shown.segments]), np.concatenate(values), path,
+                np.concatenate(sim.truth), np.concatenate(values), path,
                 title=f"{name}: {target}, {part} trajectories shown (run {run.id})", label=target,
             ))
     return report

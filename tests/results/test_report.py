@@ -183,7 +183,8 @@ def test_report_command(static_run, tmp_path):
     runner = CliRunner()
     store = str(static_run.path.parent)
     out = tmp_path / "cli"
-    res = runner.invoke(cli, ["report", static_run.id, "-o", str(out), "--store", store, "--no-figures"])
+    res = runner.invoke(cli, ["report", static_run.id, "-o", str(out), "--store", store, "--no-figures",
+                              "--no-interactive"])
     assert res.exit_code == 0, res.output
     assert res.output.strip() == f"wrote {out / 'index.html'} (0 figures)"
     assert not list(out.glob("*.png")) and "Comparison table" in (out / "index.html").read_text()

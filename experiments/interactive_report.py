@@ -1,0 +1,317 @@
+"""One self-contained interactive HTML file of a stored run (plotly, JavaScript inlined once).
+
+``write_interactive_report(run, PATH)`` writes a page that opens offline: the comparison
+table sortable by clicking its headers, failed jobs with their reasons, zoomable time
+series of the evaluated part (one toggleable trace per method, diverged trajectories
+dashed, mixing weights as stacked bands underneath), measured vs predicted scatters,
+each metric per repetition, and the validation curves of model selection. The
+predictions come from the same re-fit as the static report (``report.refit_predictions``
+for static/window runs, ``plots_run.simulate_run`` for simulation runs); ``write_reports``
+writes both pages from one re-fit. Figures are built by ``results.interactive``.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from enginebench.errors import EngineBenchError
+from enginebench.experiments.report import (REPORT_FILE, Predictions, ReportResult, _synthetic, _time_axis,
+                                            is_learning_curve, refit_predictions, write_report)
+from enginebench.results import tables
+from enginebench.results.notes import note_lines
+from enginebench.results.store import Run
+
+INTERACTIVE_FILE = "report.html"
+INSTALL_HINT = 'pip install "enginebench[report]"'
+
+
+def plotly_available() -> bool:
+    """True when plotly (the optional extra ``report``) can be imported."""
+    try:
+        import plotly  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@dataclass
+class InteractiveResult:
+    """What ``write_interactive_report`` wrote: the file, its figures' titles and the notes shown in it."""
+
+    path: Path
+    figures: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def run_units(run: Run) -> dict[str, str]:
+    """Column -> unit as the run recorded them (``{}`` for a run made before units were recorded)."""
+    from enginebench.results.units import run_units as recorded
+
+    return recorded(run.info())
+
+
+@dataclass
+class _Page:
+    """The figures and fragments of the page, in order."""
+
+    sections: list[tuple[str, str, list[str]]] = field(default_factory=list)
+    titles: list[str] = field(default_factory=list)
+
+    def figure(self, fig, caption: str) -> str:
+        from enginebench.results.interactive import figure_html
+
+        self.titles.append(caption)
+        return (f"<figure>{figure_html(fig, f'figure-{len(self.titles)}')}"
+                f"<figcaption>{html.escape(caption)}</figcaption></figure>\n")
+
+    def add(self, anchor: str, title: str, fragments: list[str]) -> None:
+        if fragments:
+            self.sections.append((anchor, title, fragments))
+
+
+def _series(predictions: Sequence[Predictions], simulated: Sequence[Any]) -> list[dict[str, Any]]:
+    """The re-fitted series, one dict per (target, window, split): rows shared by every method."""
+    groups: dict[tuple, list[Predictions]] = {}
+    for p in predictions:
+        groups.setdefault((p.target, p.window, p.split, p.part), []).append(p)
+    out = []
+    for (target, window, split, part), group in groups.items():
+        first = group[0]
+        weighed = next((p for p in group if p.weights is not None), None)
+        out.append({"target": target, "window": window, "split": split, "part": part, "repetition": first.repetition,
+                    "time": first.time, "segment": first.segment, "truth": first.truth,
+                    "pred": {p.method: p.pred for p in group}, "diverged": {p.method: p.diverged for p in group},
+                    "weights": None if weighed is None else weighed.weights,
+                    "weights_label": "" if weighed is None else weighed.method, "what": "re-fitted"})
+    for sim in simulated:
+        lengths = [len(t) for t in sim.time]
+        segment = np.repeat(np.arange(len(lengths)), lengths)
+        out.append({"target": sim.target, "window": sim.window, "split": sim.split, "part": sim.part,
+                    "repetition": sim.repetition, "time": np.concatenate(sim.time), "segment": segment,
+                    "truth": np.concatenate(sim.truth), "pred": {m: np.concatenate(v) for m, v in sim.sims.items()},
+                    "diverged": {m: np.repeat(f, lengths) for m, f in sim.diverged.items()},
+                    "weights": None if sim.gate is None else np.concatenate(sim.gate), "weights_label": sim.gate_label,
+                    "what": f"re-fitted, simulated; trajectories {', '.join(sim.segment_ids)}"})
+    return out
+
+
+def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[str, str], max_points: int) -> None:
+    from enginebench.results.interactive import axis_label, scatter_figure, time_series_figure
+
+    trends, scatters = [], []
+    for s in series:
+        x, tunit = _time_axis(np.asarray(s["time"], dtype=float))
+        where = f"{s['target']}, window {s['window']:g} s, split {s['split']}"
+        about = f"{s['part']} part, repetition {s['repetition']} ({s['what']})"
+        label = axis_label(s["target"], units.get(s["target"]))
+        n_div = {m: int(np.count_nonzero(np.diff(np.r_[0, d.astype(int)]) == 1))
+                 for m, d in s["diverged"].items() if d is not None and d.any()}
+        caption = f"{where}: measured and predicted over time on the {about}" + (
+            "; diverged (dashed): " + ", ".join(f"{m} ({k} segment{'s' * (k != 1)})" for m, k in n_div.items())
+            if n_div else "") + (f"; {s['weights_label']} mixing weights as bands underneath" if s["weights_label"]
+                                 else "")
+        trends.append(page.figure(time_series_figure(
+            x, s["segment"], s["truth"], s["pred"], diverged=s["diverged"], weights=s["weights"],
+            weights_label=s["weights_label"], title=f"{where}: {s['part']} part", y_label=label,
+            x_label=f"time since the first shown {s['part']} row ({tunit})", max_points=max_points), caption))
+        scatters.append(page.figure(scatter_figure(s["truth"], s["pred"], title=f"{where}: measured vs predicted",
+                                                   label=label, max_points=max_points),
+                                    f"{where}: measured vs predicted on the {about}"))
+    page.add("series", "Time series", trends)
+    page.add("scatter", "Measured vs predicted", scatters)
+
+
+def _table_section(page: _Page, summary: pd.DataFrame, metrics: Sequence[str], units: dict[str, str]) -> None:
+    from enginebench.results.interactive import header, sortable_table
+    from enginebench.results.units import window_header
+
+    cells, bold = tables.wide(summary, metrics)
+    targets = set(summary["target"].astype(str))
+    unit = units.get(next(iter(targets))) if len({units.get(t) for t in targets}) == 1 else None
+    heads = [window_header() if n == "window" else n for n in cells.index.names] + [header(c, unit) if c in set(summary["metric"]) else c for c in cells.columns]
+    rows = []
+    for idx, row in cells.iterrows():
+        idx = idx if isinstance(idx, tuple) else (idx,)
+        rows.append([f"{k:g}" if isinstance(k, float) else str(k) for k in idx] + [str(v) for v in row])
+    flags = [[False] * len(cells.index.names) + [bool(b) for b in r] for r in bold.to_numpy()]
+    notes = "".join(f"<p class=\"note\">{html.escape(n)}</p>\n" for n in tables.table_notes(summary, cells))
+    page.add("table", "Comparison table", ["<p>Click a header to sort by it.</p>\n" + sortable_table(heads, rows, flags)
+                                           + notes])
+
+
+def _strip_section(page: _Page, raw: pd.DataFrame, metrics: Sequence[str], units: dict[str, str]) -> None:
+    from enginebench.results.interactive import header, strip_figure
+
+    ok = raw[raw["status"] == "ok"] if "status" in raw else raw
+    ok = ok.assign(block=[f"{t}, window {w:g} s, {s}" for t, w, s in zip(ok["target"], ok["window"], ok["split"])])
+    targets = set(ok["target"].astype(str))
+    unit = units.get(next(iter(targets))) if targets and len({units.get(t) for t in targets}) == 1 else None
+    figs = []
+    for metric in metrics:
+        rows = ok[ok["metric"] == metric]
+        if rows.empty:
+            continue
+        title = f"{metric} per repetition"
+        figs.append(page.figure(strip_figure(rows, title=title, y_label=header(metric, unit)),
+                                f"{metric} of each repetition (one point each; hover for its number)"))
+    page.add("repetitions", "Metrics per repetition", figs)
+
+
+def _validation_section(page: _Page, run: Run) -> str | None:
+    """Validation curves from ``Run.selection_table()``; a note instead where the run has none."""
+    from enginebench.results.interactive import validation_figure
+
+    if not hasattr(run, "selection_table"):
+        return "validation curves: this version of the run store does not read model-selection scores"
+    table = run.selection_table()
+    if table is None or table.empty:
+        return "validation curves: the run stored no model-selection scores (no search, or an older run)"
+    figs = []
+    for (target, window, split, method), part in table.groupby(["target", "window", "split", "method"], sort=False):
+        where = f"{method}: {target}, window {float(window):g} s, split {split}"
+        fig = validation_figure(part, title=where)
+        if fig is not None:
+            figs.append(page.figure(fig, f"{where}: validation score over the searched grid (mean over repetitions "
+                                         "and resamples; stars: the point each repetition chose)"))
+    page.add("validation", "Validation curves", figs)
+    return None if figs else "validation curves: every search had a single point"
+
+
+_STYLE = """
+body { font-family: sans-serif; margin: 1.5em 2em; max-width: 1300px; color: #222; }
+nav a { margin-right: 1em; }
+table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; }
+th { background: #f2f2f2; cursor: pointer; user-select: none; }
+th[data-order=asc]::after { content: " \\25B2"; } th[data-order=desc]::after { content: " \\25BC"; }
+figure { margin: 0.8em 0 1.6em 0; } figcaption { color: #444; font-size: 0.9em; }
+pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; font-size: 0.85em; }
+.synthetic { color: #a00; font-weight: bold; } .note { color: #555; } .failed { color: #a00; }
+"""
+
+
+def _html(run: Run, page: _Page, failures: list[str], notes: list[str]) -> str:
+    from enginebench.results.interactive import SORT_SCRIPT, plotly_script
+
+    cfg, info = run.config(), run.info()
+    esc = html.escape
+    out = [f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+           f"<title>enginebench interactive report: {esc(run.id)}</title>\n<style>{_STYLE}</style>\n"
+           f"{plotly_script()}</head>\n<body>\n<h1>Run {esc(run.id)}</h1>\n"
+           f"<p>experiment <b>{esc(str(cfg.get('name', '?')))}</b> on dataset <b>{esc(str(cfg.get('dataset', '?')))}</b>;"
+           f" targets {esc(', '.join(map(str, cfg.get('targets', []))))}; mode {esc(str(cfg.get('mode', '?')))}; "
+           f"{esc(str(cfg.get('repetitions', '?')))} repetitions, seed {esc(str(cfg.get('seed', '?')))}; status "
+           f"{esc(str(info.get('status', '?')))}, {esc(str(info.get('failed_jobs', 0)))} of "
+           f"{esc(str(info.get('n_jobs', '?')))} jobs failed. Static version: <a href=\"{REPORT_FILE}\">{REPORT_FILE}</a>"
+           "</p>\n"]
+    if _synthetic(cfg.get("dataset", "")):
+        out.append("<p class=\"synthetic\">SYNTHETIC data (generated by enginebench): not measurements of a real "
+                   "engine.</p>\n")
+    sections = list(page.sections)
+    where = 1 if sections and sections[0][0] == "table" else 0
+    sections.insert(where, ("failures", "Failed jobs and warnings",
+                            ["<ul>\n" + "".join(f"<li class=\"{'failed' if f.startswith('failed') else 'note'}\">"
+                                                f"{esc(f)}</li>\n" for f in failures) + "</ul>\n"]
+                            if failures else ["<p class=\"note\">no job failed or warned</p>\n"]))
+    if notes:
+        sections.append(("notes", "Notes", ["<ul>\n" + "".join(f"<li class=\"note\">{esc(n)}</li>\n" for n in notes)
+                                            + "</ul>\n"]))
+    cfg_text = (run.path / "config.toml").read_text() if (run.path / "config.toml").is_file() else ""
+    sections.append(("settings", "Config and run info", [f"<pre>{esc(cfg_text)}</pre>\n<pre>"
+                                                         f"{esc(json.dumps(info, indent=2))}</pre>\n"]))
+    out.append("<nav>" + "".join(f"<a href=\"#{a}\">{esc(t)}</a>" for a, t, _ in sections) + "</nav>\n")
+    for anchor, title, fragments in sections:
+        out.append(f"<h2 id=\"{anchor}\">{esc(title)}</h2>\n" + "".join(fragments))
+    out.append(SORT_SCRIPT + "</body>\n</html>\n")
+    return "".join(out)
+
+
+def write_interactive_report(
+    run: Run,
+    path: str | Path,
+    *,
+    metrics: Sequence[str] | None = None,
+    interval: str | None = None,
+    figures: bool = True,
+    repetition: int = 0,
+    part: str = "test",
+    methods: Sequence[str] | None = None,
+    trajectories: int = 3,
+    max_points: int | None = None,
+    predictions: Sequence[Predictions] | None = None,
+    simulated: Sequence[Any] | None = None,
+    notes: Sequence[str] = (),
+) -> InteractiveResult:
+    """Write the interactive page of ``run`` to ``path`` (one HTML file, plotly.js inlined once).
+
+    The time series and scatters come from ``predictions`` / ``simulated`` when given
+    (what ``write_report`` re-fitted), otherwise from re-fitting ``repetition`` here;
+    ``figures=False`` draws none of them (no data loaded). ``notes`` are shown on the page.
+    """
+    from enginebench.results.interactive import MAX_POINTS
+
+    max_points = MAX_POINTS if max_points is None else max_points
+    cfg = run.config()
+    raw = run.metrics()
+    summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
+    metrics = list(metrics) if metrics else list(tables.default_metrics(summary))
+    units = run_units(run)
+    result = InteractiveResult(Path(path), notes=list(notes))
+    page = _Page()
+    _table_section(page, summary, metrics, units)
+    if figures and not is_learning_curve(run):
+        if predictions is None and simulated is None:
+            try:
+                if cfg.get("mode") == "simulation":
+                    from enginebench.experiments.plots_run import simulate_run
+
+                    simulated, more = simulate_run(run, list(methods) if methods else None, trajectories, part,
+                                                   repetition)
+                else:
+                    predictions, more = refit_predictions(run, repetition=repetition, part=part, methods=methods)
+                result.notes += more
+            except EngineBenchError as exc:
+                if methods:
+                    raise
+                result.notes.append(f"prediction figures skipped: {exc}")
+        _prediction_sections(page, _series(predictions or [], simulated or []), units, max_points)
+    elif figures:
+        result.notes.append("learning-curve run: no prediction figures (each amount of data is its own model); "
+                            f"its curve is in {REPORT_FILE}")
+    _strip_section(page, raw, metrics, units)
+    missing = _validation_section(page, run)
+    if missing:
+        result.notes.append(missing)
+    result.figures = list(page.titles)
+    result.path.parent.mkdir(parents=True, exist_ok=True)
+    result.path.write_text(_html(run, page, note_lines(run.job_notes()), result.notes), encoding="utf-8")
+    return result
+
+
+def write_reports(run: Run, out_dir: str | Path, *, interactive: bool = True, **options: Any
+                  ) -> tuple[ReportResult, InteractiveResult | None, list[str]]:
+    """``DIR/index.html`` (``write_report``) and, with plotly installed, ``DIR/report.html`` from the same re-fit.
+
+    Returns both results and the notes for the user (the static report's, plus how to get
+    the interactive one when plotly is missing).
+    """
+    make = interactive and plotly_available()
+    static = write_report(run, out_dir, interactive=INTERACTIVE_FILE if make else None, **options)
+    notes = list(static.notes)
+    if interactive and not make:
+        notes.append(f"interactive report ({INTERACTIVE_FILE}) not written: plotly is not installed; {INSTALL_HINT}")
+    if not make:
+        return static, None, notes
+    keep = {k: options[k] for k in ("metrics", "interval", "figures", "repetition", "part", "methods", "trajectories")
+            if k in options}
+    page = write_interactive_report(run, Path(out_dir) / INTERACTIVE_FILE, predictions=static.predictions,
+                                    simulated=static.simulated, notes=static.notes, **keep)
+    notes += [n for n in page.notes if n not in static.notes]
+    return static, page, notes
