@@ -85,7 +85,10 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     cfg = result.run.config()
     summary = summarize(raw, interval=cfg.get("interval", "t"))
     out = Console()
-    out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})"))
+    from enginebench.results.units import run_units
+
+    out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})",
+                      units=run_units(result.run.info()), width=out.width))
     from enginebench.results.tables import default_paired_metric
 
     paired_metric = default_paired_metric(cfg.get("mode", ""))

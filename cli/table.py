@@ -18,16 +18,22 @@ from enginebench.cli.options import check_metrics, check_output, emit, split_lis
               help="Metric for the paired tests printed under term/md tables ('' to skip) "
                    "[default: rmse for a simulation-mode run, else mae].")
 @click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
+@click.option("--width", type=click.IntRange(min=40), default=None,
+              help="Columns of the term table: its blocks split their metric columns to fit "
+                   "[default: the terminal's width, 80 when it is not known].")
 @store_option
-def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, store) -> None:
+def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, width, store) -> None:
     """Print the comparison table of RUN (an id, a unique prefix, 'latest' or a run folder).
 
     csv is the long table: one row per dataset, target, mode, window, method, split and
     metric with mean, ci_low, ci_high, sd, median, iqr (over repetitions), n_repeats and
-    n_failed. The other formats are wide: one column per metric, mean ± half-width.
+    n_failed, and each metric's unit. The other formats are wide: one column per metric,
+    mean ± half-width, headed with its unit (mae [degC], mape [%]). The term format prints
+    one block per (target, mode, Delta, split) that fits the terminal (or --width).
     """
     from enginebench.results import tables
     from enginebench.results.store import RunStore
+    from enginebench.results.units import run_units
 
     check_output(output)
     run = RunStore(store).get(run_ref)
@@ -42,20 +48,23 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     if paired_metric:
         check_metrics([paired_metric], raw["metric"], "--paired", run.id)
     notes = job_note_lines(run)
+    units = run_units(run.info())  # {} for a run made before units were recorded: headers without units
     if fmt == "term" and output is None:
-        Console().print(tables.to_rich(summary, cols, title=run.id))
+        console = Console(width=width) if width else Console()
+        console.print(tables.to_rich(summary, cols, title=run.id, units=units, width=console.width))
         if paired_metric:
             click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric))
         for line in notes:
             click.echo(line)  # not through rich: a reason is one line, never wrapped
         return
     text = {
-        "term": lambda: tables.to_markdown(summary, cols),
-        "md": lambda: tables.to_markdown(summary, cols) + ("\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric)
-                                                           if paired_metric else ""),
-        "latex": lambda: tables.to_latex(summary, cols),
-        "csv": lambda: tables.to_csv(summary),
-        "html": lambda: tables.to_html(summary, cols),
+        "term": lambda: tables.to_term(summary, cols, title=run.id, units=units, width=width or 80) + (
+            "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric) if paired_metric else ""),
+        "md": lambda: tables.to_markdown(summary, cols, units=units) + (
+            "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric) if paired_metric else ""),
+        "latex": lambda: tables.to_latex(summary, cols, units=units),
+        "csv": lambda: tables.to_csv(summary, units=units),
+        "html": lambda: tables.to_html(summary, cols, units=units),
     }[fmt]()
     if notes and fmt in ("term", "md"):
         text += "\n" + "\n".join(notes) + "\n"

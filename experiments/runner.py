@@ -241,7 +241,8 @@ def run_experiment(
         ctx = prepare(spec)
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
                            len(plan(ctx)))
-        run.update_info(dataset_hash=ctx.dataset_hash)
+        run.update_info(dataset_hash=ctx.dataset_hash,  # units: {column: unit} of the loaded columns, for labels
+                        units={k: u for p in ctx.problems.values() for k, u in p.train.raw.units.items() if u})
         return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
                        scheduler=scheduler)
     state = resume.prepare_resume()  # refuses a damaged run, other plugin files, a second writer

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import html
 import math
-from typing import Sequence
+import shutil
+from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -25,6 +26,7 @@ import pandas as pd
 from enginebench.errors import DataError
 from enginebench.results.metrics import METRICS, bounds
 from enginebench.results.stats import bootstrap_interval, describe, holm, identical, paired_pvalues, t_interval
+from enginebench.results.units import WINDOW, axis_label, header, metric_unit
 
 KEYS = ["dataset", "target", "mode", "window", "method", "split"]
 SUMMARY_COLUMNS = KEYS + ["metric", "mean", "ci_low", "ci_high", "sd", "median", "iqr", "n_repeats", "n_failed",
@@ -38,6 +40,8 @@ CROSSED = "†"
 IDENTICAL = "‡"
 IDENTICAL_NOTE = "identical repetitions: every repetition gave the same value, so there is no interval"
 CROSSED_NOTE = "interval crosses the metric's bound"
+COUNT_COLUMNS = ("n", "failed", "diverged")
+"""The count columns of a wide table (no unit)."""
 
 
 def default_metrics(summary: pd.DataFrame) -> tuple[str, ...]:
@@ -219,8 +223,39 @@ def wide(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> tuple[p
     return cells.fillna("n/a"), bold
 
 
-def _header(cells: pd.DataFrame) -> list[str]:
-    return list(cells.index.names) + list(cells.columns)
+def _common_unit(cells: pd.DataFrame, units: Mapping[str, str] | None) -> str | None:
+    """The one unit of every target in `cells` ("" when unknown), or None when the targets' units differ."""
+    targets = cells.index.get_level_values("target").unique() if "target" in cells.index.names else []
+    found = {(units or {}).get(str(t), "") for t in targets}
+    return found.pop() if len(found) == 1 else None if found else ""
+
+
+def _header(cells: pd.DataFrame, units: Mapping[str, str] | None = None) -> list[str]:
+    """Column names as printed: ``Delta [s]`` for the window, each metric with its unit (``mae [degC]``).
+
+    When the targets of one table have different units, a target-unit metric reads
+    ``mae [target's unit]`` and the target cells carry their unit (``_with_target_units``).
+    """
+    common = _common_unit(cells, units)
+    names = [WINDOW if n == "window" else n for n in cells.index.names]
+    return names + [_column_header(c, common) for c in cells.columns]
+
+
+def _column_header(column: str, unit: str | None) -> str:
+    """A wide table's column header: counts as they are, a metric with its unit (None: the targets' units differ)."""
+    if column in COUNT_COLUMNS:
+        return column
+    if unit is None:
+        return f"{column} [target's unit]" if metric_unit(column, "x") == "x" else header(column)
+    return header(column, unit)
+
+
+def _with_target_units(cells: pd.DataFrame, units: Mapping[str, str] | None) -> pd.DataFrame:
+    """`cells` with each target named with its unit (``y [degC]``) when the table's targets have different units."""
+    if "target" not in cells.index.names or _common_unit(cells, units) is not None:
+        return cells
+    u = units or {}
+    return cells.rename(index=lambda v: axis_label(str(v), u.get(str(v), "")), level="target")
 
 
 def _rows(cells: pd.DataFrame, bold: pd.DataFrame, mark) -> list[list[str]]:
@@ -282,13 +317,22 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
         worse = rows[(rows["method"] != BASELINE) & (rows["mean"].to_numpy(dtype=float) > base[0])]
         for _, r in worse.iterrows():
             out.append(f"worse than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}; "
-                       f"{r['target']}, window {r['window']:g}, {r['split']}): its settings do not suit these data")
+                       f"{r['target']}, Delta {r['window']:g} s, {r['split']}): its settings do not suit these data")
     return out
 
 
-def to_markdown(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
+def _labelled(summary: pd.DataFrame, metrics: Sequence[str] | None,
+              units: Mapping[str, str] | None) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """``wide`` with the printed header (units, ``Delta [s]``) and, for mixed units, targets named with theirs."""
     cells, bold = wide(summary, metrics)
-    head = _header(cells)
+    head = _header(cells, units)
+    return _with_target_units(cells, units), _with_target_units(bold, units), head
+
+
+def to_markdown(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
+                units: Mapping[str, str] | None = None) -> str:
+    """A markdown table with its notes; `units` ({column: unit}, the run's ``info["units"]``) label the headers."""
+    cells, bold, head = _labelled(summary, metrics, units)
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in _rows(cells, bold, lambda v: f"**{v}**")]
     return "\n".join(lines) + "\n\n" + "\n\n".join(table_notes(summary, cells)) + "\n"
@@ -301,9 +345,10 @@ def _latex_escape(text: str) -> str:
     return text
 
 
-def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
-    cells, bold = wide(summary, metrics)
-    head = _header(cells)
+def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
+             units: Mapping[str, str] | None = None) -> str:
+    """A LaTeX tabular (booktabs) with the notes as comments; headers carry the units as ``to_markdown``'s."""
+    cells, bold, head = _labelled(summary, metrics, units)
     lines = [r"\begin{tabular}{" + "l" * len(cells.index.names) + "r" * len(cells.columns) + "}", r"\toprule",
              " & ".join(_latex_escape(h) for h in head) + r" \\", r"\midrule"]
     for r in _rows(cells, bold, lambda v: "\x00" + v):
@@ -313,9 +358,11 @@ def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str
     return "\n".join(lines) + "\n"
 
 
-def to_html(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
-    cells, bold = wide(summary, metrics)
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in _header(cells))
+def to_html(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
+            units: Mapping[str, str] | None = None) -> str:
+    """An HTML table with the notes as paragraphs; headers carry the units as ``to_markdown``'s."""
+    cells, bold, head_names = _labelled(summary, metrics, units)
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in head_names)
     body = "\n".join(
         "<tr>" + "".join(f"<td><b>{html.escape(c[1:])}</b></td>" if c.startswith("\x00") else f"<td>{html.escape(c)}</td>"
                          for c in r) + "</tr>"
@@ -325,39 +372,109 @@ def to_html(summary: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
     return f'<table class="enginebench">\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n' + notes
 
 
-def to_csv(summary: pd.DataFrame) -> str:
-    return summary.to_csv(index=False)
+def to_csv(summary: pd.DataFrame, *, units: Mapping[str, str] | None = None) -> str:
+    """The long summary as csv, one value per cell: the window column is ``Delta [s]`` as in the other formats,
+    and ``unit`` (after ``metric``) is each row's metric unit ("" when unknown, e.g. mae of a run without units)."""
+    u = units or {}
+    out = summary.rename(columns={"window": WINDOW})
+    if "metric" in out.columns:
+        unit = [metric_unit(str(m), u.get(str(t), "")) for m, t in zip(out["metric"], out["target"])]
+        out.insert(out.columns.get_loc("metric") + 1, "unit", unit)
+    return out.to_csv(index=False)
 
 
-def _drop_constant_levels(cells: pd.DataFrame, bold: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, str]:
-    """Move index levels with a single value into a caption line (narrow terminals)."""
-    fixed = []
-    for name in list(cells.index.names):
-        values = cells.index.get_level_values(name).unique()
-        if len(values) == 1 and cells.index.nlevels > 1:
-            v = values[0]
-            fixed.append(f"{name} {v:g}" if isinstance(v, float) else f"{name} {v}")
-            cells, bold = cells.droplevel(name), bold.droplevel(name)
-    return cells, bold, ", ".join(fixed)
+BLOCK = ["target", "mode", "window", "split"]
+"""The index levels of one terminal block (one title; methods as rows)."""
 
 
-def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: str | None = None):
-    """A rich Table for the terminal; levels that never change go to the title, the notes to the caption."""
+def block_title(target: str, mode: str, window: float, split: str, unit: str = "") -> str:
+    """The title above one terminal block: ``y [degC] | static | Delta 0 s | test``, names never shortened."""
+    return f"{axis_label(str(target), unit)} | {mode} | Delta {float(window):g} s | {split}"
+
+
+def _block_table(cells: pd.DataFrame, bold: pd.DataFrame, columns: list[str], unit: str):
+    """A rich Table of one block: methods as rows, the count columns and `columns` (metrics) as columns."""
+    from rich import box
     from rich.markup import escape
     from rich.table import Table
 
-    cells, bold = wide(summary, metrics)
-    notes = table_notes(summary, cells)
-    cells, bold, fixed = _drop_constant_levels(cells, bold)
-    cells = cells.rename(index=lambda v: escape(v) if isinstance(v, str) else v).map(escape)
-    bold = bold.rename(index=lambda v: escape(v) if isinstance(v, str) else v)
-    title = " | ".join(t for t in (title, fixed) if t) or None
-    table = Table(title=title, caption=escape("\n".join(notes)))
-    for i, h in enumerate(_header(cells)):
-        table.add_column(h, justify="left" if i < len(cells.index.names) else "right")
-    for r in _rows(cells, bold, lambda v: f"[bold]{v}[/bold]"):
-        table.add_row(*r)
+    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False, collapse_padding=True)
+    table.add_column("method", no_wrap=True)  # a name is never cut: a block too wide splits its metrics instead
+    counts = [c for c in cells.columns if c in COUNT_COLUMNS]
+    for c in counts + columns:
+        table.add_column(escape(_column_header(c, unit)), justify="right", overflow="fold")
+    for method, row in cells.iterrows():
+        flags = bold.loc[method]
+        table.add_row(escape(str(method)), *[f"[bold]{escape(row[c])}[/bold]" if flags[c] else escape(row[c])
+                                            for c in counts + columns])
     return table
+
+
+def _width_of(renderable) -> int:
+    from rich.console import Console
+    from rich.measure import Measurement
+
+    console = Console(width=100_000, color_system=None)
+    return Measurement.get(console, console.options, renderable).maximum
+
+
+def term_blocks(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
+                units: Mapping[str, str] | None = None, width: int = 80) -> list[tuple[str, object]]:
+    """(title, rich Table) per (target, mode, Delta, split) block, each at most `width` columns wide.
+
+    Methods are rows; the count columns (n, and failed and diverged when non-zero) come in
+    every block, next to the numbers they qualify; the metric columns go on as many
+    blocks of the same title as it takes to stay within `width` (the title then says
+    ``(columns 2 of 2)``). Names are never shortened: a single metric column that still
+    does not fit wraps its numbers, never a method name.
+    """
+    cells, bold = wide(summary, metrics)
+    metric_cols = [c for c in cells.columns if c not in COUNT_COLUMNS]
+    u = units or {}
+    out = []
+    for key, block in cells.groupby(level=BLOCK, sort=False):
+        rows = block.droplevel(BLOCK)
+        flags = bold.loc[block.index].droplevel(BLOCK)
+        unit = u.get(str(key[0]), "")
+        groups: list[list[str]] = []
+        for m in metric_cols:
+            if groups and _width_of(_block_table(rows, flags, groups[-1] + [m], unit)) <= width:
+                groups[-1].append(m)
+            else:
+                groups.append([m])
+        title = block_title(*key, unit=unit)
+        for k, group in enumerate(groups):
+            part = f" (columns {k + 1} of {len(groups)})" if len(groups) > 1 else ""
+            out.append((title + part, _block_table(rows, flags, group, unit)))
+    return out
+
+
+def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: str | None = None, *,
+            units: Mapping[str, str] | None = None, width: int | None = None):
+    """The terminal table as one rich renderable: `title`, then one titled block per (target, mode, Delta, split)
+    (``term_blocks``), then the notes. `width` None: the terminal's (``shutil.get_terminal_size``)."""
+    from rich.console import Group
+    from rich.text import Text
+
+    width = width or shutil.get_terminal_size().columns
+    cells, _ = wide(summary, metrics)
+    parts: list[object] = [Text(title, style="bold")] if title else []
+    for head, table in term_blocks(summary, metrics, units=units, width=width):
+        parts += [Text(""), Text(head, style="bold"), table]
+    parts += [Text("")] + [Text(n) for n in table_notes(summary, cells)]
+    return Group(*parts)
+
+
+def to_term(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: str | None = None, *,
+            units: Mapping[str, str] | None = None, width: int = 80) -> str:
+    """``to_rich`` as plain text, every line at most `width` characters (notes wrap at word boundaries)."""
+    import io
+
+    from rich.console import Console
+
+    console = Console(file=io.StringIO(), width=width, color_system=None, legacy_windows=False)
+    console.print(to_rich(summary, metrics, title, units=units, width=width))
+    return console.file.getvalue()
 
 
 # -- paired tests -------------------------------------------------------------------
@@ -410,7 +527,7 @@ def paired_text(tests: pd.DataFrame, metric: str) -> str:
     holm_text = f"; p = unadjusted p-value, Holm = adjusted for the {m} tests listed (Holm-Bonferroni)" if m > 1 else ""
     lines = [f"Paired tests on {metric} against the best method of each block (over repetitions){holm_text}:"]
     for r in tests.itertuples():
-        where = f"  {r.target}, {r.mode}, window {float(r.window):g} s, {r.split}: {r.method} - {r.versus} = {r.mean_difference:+.4g}"
+        where = f"  {r.target}, {r.mode}, Delta {float(r.window):g} s, {r.split}: {r.method} - {r.versus} = {r.mean_difference:+.4g}"
         note = getattr(r, "note", "")
         if isinstance(note, str) and note:
             lines.append(f"{where}  ({note}; n = {r.n_pairs})")

@@ -78,7 +78,7 @@ lambda_grid = [-3, -1, 2]
     out = runner.invoke(cli, ["table", "latest", "--format", "csv", "-o", str(csv_path)])
     assert out.exit_code == 0
     frame = pd.read_csv(csv_path)
-    assert {"dataset", "target", "mode", "window", "method", "split", "metric", "mean", "ci_low", "ci_high",
+    assert {"dataset", "target", "mode", "Delta [s]", "method", "split", "metric", "mean", "ci_low", "ci_high",
             "sd", "median", "iqr", "n_repeats"} <= set(frame.columns)
     assert set(frame["method"]) == {"naive-mean", "krls"}
     listed = runner.invoke(cli, ["runs", "list"])

@@ -191,9 +191,9 @@ def test_undefined_metrics_reach_the_stored_job_as_nan_with_their_note_and_the_t
     assert set(summary[summary["metric"] == "ppmcc"]["method"]) == {"krls"}
     lines = to_markdown(summary).splitlines()
     head = [c.strip() for c in lines[0].strip("|").split("|")]
-    assert "mape" not in head  # a metric undefined for every method is left out of the wide table
+    assert "mape [%]" not in head  # a metric undefined for every method is left out of the wide table
     row = dict(zip(head, [c.strip() for c in next(r for r in lines if "| naive-mean |" in r).strip("|").split("|")]))
-    assert row["ppmcc"] == "n/a" and row["mae"] != "n/a" and row["n"] == "3"
+    assert row["ppmcc [-]"] == "n/a" and row["mae"] != "n/a" and row["n"] == "3"
 
 
 # ----------------------------------------------------------------- NaN / inf predictions

@@ -359,6 +359,6 @@ def test_a_method_worse_than_the_training_mean_is_named_under_the_table():
     summary = pd.DataFrame([{"dataset": "d", "target": "y", "mode": m, "window": 0.0, "split": "test", "method": me,
                              "metric": mt, "mean": v} for m, me, mt, v in rows])
     assert worse_than_baseline(summary) == [
-        "worse than the training mean: sindy (rmse 1.5 vs 1; y, window 0, test): its settings do not suit these data",
-        "worse than the training mean: krls (mae 2.5 vs 2; y, window 0, test): its settings do not suit these data",
+        "worse than the training mean: sindy (rmse 1.5 vs 1; y, Delta 0 s, test): its settings do not suit these data",
+        "worse than the training mean: krls (mae 2.5 vs 2; y, Delta 0 s, test): its settings do not suit these data",
     ]

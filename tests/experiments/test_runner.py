@@ -113,13 +113,13 @@ def test_table_formats(toy_parquet, tmp_path):
     run = run_experiment(toy_spec(toy_parquet), RunStore(tmp_path), workers=1).run
     summary = summarize(run.metrics())
     md = to_markdown(summary)
-    assert md.splitlines()[0] == "| target | mode | window | split | method | n | mae | mape | ppmcc | rmae |"
+    assert md.splitlines()[0] == "| target | mode | Delta [s] | split | method | n | mae | mape [%] | ppmcc [-] | rmae [%] |"
     krls_line = next(line for line in md.splitlines() if "| krls |" in line)
     assert krls_line.count("**") >= 6  # krls is best on mae, mape, ppmcc, rmae
     assert r"\toprule" in to_latex(summary) and r"\textbf{" in to_latex(summary)
     assert "<table" in to_html(summary) and "<b>" in to_html(summary)
     csv = pd.read_csv(__import__("io").StringIO(to_csv(summary)))
-    for col in ["dataset", "target", "mode", "window", "method", "split", "metric", "mean", "ci_low", "ci_high",
+    for col in ["dataset", "target", "mode", "Delta [s]", "method", "split", "metric", "mean", "ci_low", "ci_high",
                 "sd", "median", "iqr", "n_repeats"]:
         assert col in csv.columns
 

@@ -134,7 +134,7 @@ def test_failed_and_diverged_counts_appear_in_every_format_and_simulation_defaul
     assert (row["n_failed"], row["n_diverged"], row["n_segments"], row["n_repeats"]) == (1, 3, 12, 3)
     assert tables.default_metrics(summary) == ("rmse", "nrmse", "fit", "rmae")
     md = tables.to_markdown(summary)
-    assert md.splitlines()[0] == "| target | mode | window | split | method | n | failed | diverged | rmse | nrmse | fit | rmae |"
+    assert md.splitlines()[0] == "| target | mode | Delta [s] | split | method | n | failed | diverged | rmse | nrmse [-] | fit [%] | rmae [%] |"
     for fmt, text in _every_format(summary).items():
         line = next(x for x in text.splitlines() if "sim" in x and "simulation" not in x.replace("sim ", "")
                     or "| sim |" in x or "<td>sim</td>" in x or " sim " in x)
@@ -147,7 +147,7 @@ def test_failed_and_diverged_counts_appear_in_every_format_and_simulation_defaul
     assert set(csv[csv["method"] == "sim"]["n_diverged"]) == {3} and set(csv[csv["method"] == "sim"]["n_failed"]) == {1}
     # no divergence and no failure: neither column, and static runs keep their defaults
     quiet = tables.summarize(_long({"good": GOOD, "other": RUNAWAY}, counts={"good": ([0] * 4, [2] * 4)}))
-    assert tables.to_markdown(quiet).splitlines()[0] == "| target | mode | window | split | method | n | mae | mape | ppmcc | rmae |"
+    assert tables.to_markdown(quiet).splitlines()[0] == "| target | mode | Delta [s] | split | method | n | mae | mape [%] | ppmcc [-] | rmae [%] |"
 
 
 # ----------------------------------------------------------------- Holm
