@@ -29,7 +29,7 @@ def methods_list(plugins) -> None:
 @click.argument("name")
 @plugin_option
 def methods_show(name: str, plugins) -> None:
-    """Family, modes, options with defaults, and the docstring of method NAME."""
+    """Family, modes, the docstring and every option (type, default, unit, meaning) of method NAME."""
     import inspect
 
     from enginebench.methods.registry import get
@@ -41,9 +41,11 @@ def methods_show(name: str, plugins) -> None:
     doc = inspect.getdoc(cls)
     if doc:
         click.echo("\n" + doc)
-    opts = cls.default_options()
-    if opts:
+    rows = cls.option_declaration().rows()
+    if rows:
         key = cls.name if cls.name.replace("-", "").replace("_", "").isalnum() else f'"{cls.name}"'
         click.echo(f"\noptions (set them in the experiment's [methods.{key}] table):")
-        for k, v in opts.items():
-            click.echo(f"  {k} = {v!r}")
+        head = ("option", "type", "default", "unit", "meaning")
+        widths = [max(len(r[i]) for r in (head, *rows)) for i in range(4)]
+        for row in (head, *rows):
+            click.echo("  " + "  ".join(cell.ljust(w) for cell, w in zip(row, widths)) + "  " + row[4])

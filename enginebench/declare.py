@@ -20,6 +20,7 @@ Booleans are never numbers (``true`` is refused where a number is expected).
 from __future__ import annotations
 
 import difflib
+import json
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterator, Mapping, Sequence
@@ -360,5 +361,5 @@ def _shown(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, str):
-        return repr(value)
+        return json.dumps(value)
     return str(list(value)) if isinstance(value, tuple) else str(value)

@@ -31,39 +31,136 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import json
 import tomllib
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable
 
 from enginebench.datasets.samples import MODES
+from enginebench.declare import (Declaration, Invalid, anything, choice, flag, is_number, listing, number, table, text,
+                                 whole)
 from enginebench.errors import SpecError
 
 SELECTION_KINDS = ("bootstrap", "kfold", "validation", "none")
 CRITERIA = ("mae", "rmae", "rmse")
 INTERVALS = ("t", "bootstrap")
 
-TOP_KEYS = {
-    "name", "description", "dataset", "dataset_variant", "targets", "mode", "windows", "methods", "repetitions",
-    "seed", "train_size", "interval", "roles", "split", "selection", "method_options", "init_samples",
-}
-SELECTION_KEYS = ("kind", "resamples", "folds", "criterion", "refit")
 
-SPLIT_OPTIONS: dict[str, dict[str, tuple[type | tuple[type, ...], str]]] = {
-    "published": {},
-    "holdout": {"test_fraction": (float, "a fraction in (0, 1)"), "validation_fraction": (float, "a fraction in [0, 1)")},
-    "rolling": {"folds": (int, "a whole number >= 1"), "test_fraction": (float, "a fraction in (0, 1)")},
-    "groups": {"column": (str, "a group column's name"), "test": (list, "a list of group values"),
-               "validation": (list, "a list of group values")},
-    "records": {"train": (list, 'a list of record names, e.g. ["est"] or ["rec[1000:]"]'),
-                "test": (list, "a list of record names"), "validation": (list, "a list of record names")},
+def _names(what: str) -> Callable[[Any], list[str]]:
+    """A check: one name or a non-empty list of names, returned as a list."""
+
+    def check(value: Any) -> list[str]:
+        names = [value] if isinstance(value, str) else value
+        if not (isinstance(names, list) and names and all(isinstance(t, str) for t in names)):
+            raise Invalid("'{name}' must be a non-empty list of " + what)
+        return names
+
+    return check
+
+
+def _windows(value: Any) -> list[float]:
+    windows = [value] if is_number(value) else value
+    if not (isinstance(windows, list) and windows and all(is_number(w) and w >= 0 for w in windows)):
+        raise Invalid("'{name}' must be a list of non-negative numbers of seconds")
+    return windows
+
+
+def _record_names(value: Any) -> Any:
+    if not all(isinstance(v, str) and v.strip() for v in value):
+        raise Invalid("{name} must be a list of record names (strings), got {value}")
+    return value
+
+
+def _roles(value: Any) -> Any:
+    if not all(isinstance(v, str) for v in value.values()):
+        raise Invalid("'roles' must be a table of column = role")
+    return value
+
+
+TOP = Declaration(
+    anything("name", "", "the experiment's name (default: the spec file's stem)"),
+    anything("description", "", "free text shown with the run"),
+    text("dataset", None, "built-in dataset name, .parquet file or .toml import spec (relative to the spec's folder)",
+         message="'dataset' must be a dataset name or a file path"),
+    anything("dataset_variant", "", "a variant of the dataset (e.g. a generator size)"),
+    anything("targets", None, "target column(s)", check=_names("column names"), type_label="list[str]"),
+    choice("mode", "static", "static (inputs at t), window (inputs over the windows), simulation (free run)", MODES,
+           message="mode {value} is not one of " + ", ".join(MODES)),
+    anything("windows", [0], "window lengths (mode window)", check=_windows, unit="s", type_label="list[float >= 0]"),
+    anything("methods", None, "methods to run (or [methods.NAME] tables of their options)",
+             check=_names("method names"), type_label="list[str]"),
+    whole("repetitions", 30, "repetitions (resampled training sets) per method", low=1,
+          message="'{name}' must be an integer >= 1, got {value}"),
+    whole("seed", 0, "seed of every random draw of the experiment", low=0,
+          message="'{name}' must be a non-negative integer, got {value}"),
+    whole("train_size", 1000, "training subsample per repetition; 0 = all rows", low=0, unit="rows",
+          message="'{name}' must be an integer >= 0, got {value}"),
+    choice("interval", "t", "confidence intervals: Student t or bootstrap percentile", INTERVALS,
+           message="interval {value} is not one of " + ", ".join(INTERVALS)),
+    table("roles", {}, "column = role changes for this experiment", check=_roles,
+          message="'roles' must be a table of column = role"),
+    anything("split", {"kind": "published"}, "the train/test split: [split] table (kind and its keys) or a kind"),
+    table("selection", {}, "model selection: [selection] table", message="'selection' must be a table"),
+    table("method_options", {}, "options per method ([methods.NAME] tables)",
+          message="[methods.NAME] entries must be tables of options"),
+    whole("init_samples", 0, "simulation mode: samples that set each evaluated segment's state", low=0,
+          unit="samples", message="'{name}' must be a whole number of samples >= 0, got {value}"),
+)
+"""The experiment spec's top-level keys (``run`` names the methods when [methods.NAME] tables are given)."""
+TOP_KEYS = set(TOP.names())
+
+SELECTION = Declaration(
+    choice("kind", "bootstrap", "how hyperparameters are selected", SELECTION_KINDS,
+           message="selection kind {value} is not one of " + ", ".join(SELECTION_KINDS)),
+    whole("resamples", 5, "bootstrap resamples (kind bootstrap)", low=1),
+    whole("folds", 5, "folds (kind kfold)", low=2),
+    choice("criterion", "mae", "score minimised on the held-out part", CRITERIA,
+           message="selection criterion {value} is not one of " + ", ".join(CRITERIA)),
+    flag("refit", True, "refit the chosen point on training + validation rows"),
+)
+SELECTION_KEYS = tuple(SELECTION.names())
+
+_KIND = text("kind", "published", "split kind")
+SPLITS: dict[str, Declaration] = {
+    "published": Declaration(_KIND),
+    "holdout": Declaration(
+        _KIND,
+        number("test_fraction", None, "share of the rows (or segments) tested", low=0, high=1, low_open=True,
+               high_open=True, message="{name} must be a fraction in (0, 1), got {value}"),
+        number("validation_fraction", None, "share of the training part held out for validation", low=0, high=1,
+               high_open=True, message="{name} must be a fraction in [0, 1), got {value}"),
+    ),
+    "rolling": Declaration(
+        _KIND,
+        whole("folds", None, "rolling-origin folds", low=1, message="{name} must be a whole number >= 1, got {value}"),
+        number("test_fraction", None, "share of the rows tested per fold", low=0, high=1, low_open=True,
+               high_open=True, message="{name} must be a fraction in (0, 1), got {value}"),
+    ),
+    "groups": Declaration(
+        _KIND,
+        text("column", None, "the group column", message="{name} must be a group column's name, got {value}"),
+        listing("test", None, "group values tested", min_items=0,
+                message="{name} must be a list of group values, got {value}"),
+        listing("validation", None, "group values held out for validation", min_items=0,
+                message="{name} must be a list of group values, got {value}"),
+    ),
+    "records": Declaration(
+        _KIND,
+        listing("train", None, 'record names trained on, e.g. ["est"] or ["rec[1000:]"]', min_items=0,
+                check=_record_names, message='{name} must be a list of record names, e.g. ["est"] or ["rec[1000:]"], '
+                                         "got {value}"),
+        listing("test", None, "record names tested", min_items=0, check=_record_names,
+                message="{name} must be a list of record names, got {value}"),
+        listing("validation", None, "record names held out for validation", min_items=0, check=_record_names,
+                message="{name} must be a list of record names, got {value}"),
+    ),
 }
-"""Each split kind's options: name -> (type, what it must be). ``kind`` itself is always allowed."""
+"""Each split kind's keys, selected by ``kind``."""
 SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
+
 
 DEFAULT_ONLY_IN_HASH = {"init_samples": 0}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
@@ -129,24 +226,6 @@ def _expect(cond: bool, origin: str, message: str) -> None:
         raise SpecError(f"{origin}: {message}")
 
 
-def _is(value: Any, kind: type | tuple[type, ...]) -> bool:
-    """Strict type test: a boolean is never a number, an integer is a float."""
-    if isinstance(value, bool):
-        return kind is bool or (isinstance(kind, tuple) and bool in kind)
-    if kind is float:
-        return isinstance(value, (int, float))
-    return isinstance(value, kind)
-
-
-def _unknown_keys(unknown: set[str], allowed: Sequence[str]) -> str:
-    """'unknown key(s) a (did you mean 'b'?); allowed: ...' for a spec table."""
-    parts = []
-    for key in sorted(unknown):
-        close = difflib.get_close_matches(key, list(allowed), n=1)
-        parts.append(key + (f" (did you mean {close[0]!r}?)" if close else ""))
-    return f"unknown key(s) {', '.join(parts)}; allowed: {', '.join(sorted(allowed))}"
-
-
 def check_split(raw: Any, origin: str) -> dict[str, Any]:
     """The ``[split]`` table, its keys and their types checked for its kind (one SpecError otherwise)."""
     if isinstance(raw, str):  # split = "holdout" as a plain string: the kind alone
@@ -155,21 +234,13 @@ def check_split(raw: Any, origin: str) -> dict[str, Any]:
     split = dict(raw)
     split.setdefault("kind", "published")
     kind = split["kind"]
-    _expect(isinstance(kind, str) and kind in SPLIT_OPTIONS, origin,
-            f"split kind {kind!r} is not one of {', '.join(SPLIT_OPTIONS)}")
-    options = SPLIT_OPTIONS[kind]
-    unknown = set(split) - set(options) - {"kind"}
-    _expect(not unknown, origin, f"[split] kind = {kind!r}: " + _unknown_keys(unknown, [*options, "kind"]))
+    _expect(isinstance(kind, str) and kind in SPLITS, origin, f"split kind {kind!r} is not one of {', '.join(SPLITS)}")
+    declared = SPLITS[kind]
+    problem = declared.unknown(list(split), "key(s)", "allowed")
+    _expect(problem is None, origin, f"[split] kind = {kind!r}: {problem}")
     for key in SPLIT_REQUIRED.get(kind, ()):
-        _expect(key in split, origin, f"[split] kind = {kind!r} needs {key!r} ({options[key][1]})")
-    for key, (kind_type, what) in options.items():
-        if key in split:
-            value = split[key]
-            _expect(_is(value, kind_type), origin, f"[split] {key} must be {what}, got {value!r}")
-            if kind_type is list and kind == "records":
-                _expect(all(isinstance(v, str) and v.strip() for v in value), origin,
-                        f"[split] {key} must be a list of record names (strings), got {value!r}")
-    return split
+        _expect(key in split, origin, f"[split] kind = {kind!r} needs {key!r} ({declared[key].meaning})")
+    return declared.validate(split, origin, SpecError, name="[split] {key}", fill=False)
 
 
 def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None = None) -> ExperimentSpec:
@@ -180,71 +251,37 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         options = raw.pop("methods")
         raw.setdefault("method_options", {}).update(options)
         raw["methods"] = raw.pop("run", list(options))
-    unknown = set(raw) - TOP_KEYS - {"run"}
-    _expect(not unknown, origin, _unknown_keys(unknown, sorted(TOP_KEYS)))
+    given = {k: v for k, v in raw.items() if k != "run"}
+    problem = TOP.unknown(list(given), "key(s)", "allowed")
+    _expect(problem is None, origin, str(problem))
     for key in ("dataset", "targets", "methods"):
         _expect(key in raw, origin, f"missing required key {key!r}")
+    v = TOP.validate(given, origin, SpecError, name="{key}")
     name = str(raw.get("name", Path(origin).stem))
-    dataset = raw["dataset"]
-    _expect(isinstance(dataset, str) and dataset, origin, "'dataset' must be a dataset name or a file path")
+    dataset = v["dataset"]
     if base_dir is not None and Path(dataset).suffix in (".parquet", ".toml") and not Path(dataset).is_absolute():
         dataset = str((base_dir / dataset).resolve())
-    targets = raw["targets"]
-    targets = [targets] if isinstance(targets, str) else targets
-    _expect(isinstance(targets, list) and targets and all(isinstance(t, str) for t in targets), origin,
-            "'targets' must be a non-empty list of column names")
+    targets, methods, mode, windows = v["targets"], v["methods"], v["mode"], v["windows"]
     twice = sorted({t for t in targets if targets.count(t) > 1})
     _expect(not twice, origin, f"'targets' lists {', '.join(map(repr, twice))} more than once")
-    methods = raw["methods"]
-    methods = [methods] if isinstance(methods, str) else methods
-    _expect(isinstance(methods, list) and methods and all(isinstance(m, str) for m in methods), origin,
-            "'methods' must be a non-empty list of method names")
     _expect(len(set(methods)) == len(methods), origin, "'methods' lists a method twice")
-    mode = raw.get("mode", "static")
-    _expect(mode in MODES, origin, f"mode {mode!r} is not one of {', '.join(MODES)}")
-    windows = raw.get("windows", [0])
-    windows = [windows] if _is(windows, float) else windows
-    _expect(isinstance(windows, list) and windows and all(_is(w, float) and w >= 0 for w in windows),
-            origin, "'windows' must be a list of non-negative numbers of seconds")
     _expect(mode == "window" or all(w == 0 for w in windows), origin, f"windows > 0 need mode = 'window' (mode is {mode!r})")
-    reps = raw.get("repetitions", 30)
-    _expect(_is(reps, int) and reps >= 1, origin, f"'repetitions' must be an integer >= 1, got {reps!r}")
-    seed = raw.get("seed", 0)
-    _expect(_is(seed, int) and seed >= 0, origin, f"'seed' must be a non-negative integer, got {seed!r}")
-    train_size = raw.get("train_size", 1000)
-    _expect(_is(train_size, int) and train_size >= 0, origin, f"'train_size' must be an integer >= 0, got {train_size!r}")
-    init_samples = raw.get("init_samples", 0)
-    _expect(_is(init_samples, int) and init_samples >= 0, origin,
-            f"'init_samples' must be a whole number of samples >= 0, got {init_samples!r}")
+    init_samples = v["init_samples"]
     _expect(mode == "simulation" or init_samples == 0, origin,
             f"init_samples = {init_samples} needs mode = 'simulation' (mode is {mode!r})")
-    interval = raw.get("interval", "t")
-    _expect(interval in INTERVALS, origin, f"interval {interval!r} is not one of {', '.join(INTERVALS)}")
-    roles = raw.get("roles", {})
-    _expect(isinstance(roles, dict) and all(isinstance(v, str) for v in roles.values()), origin,
-            "'roles' must be a table of column = role")
-    split = check_split(raw.get("split", {"kind": "published"}), origin)
-    sel_raw = raw.get("selection", {})
-    _expect(isinstance(sel_raw, dict), origin, "'selection' must be a table")
-    unknown = set(sel_raw) - set(SELECTION_KEYS)
-    _expect(not unknown, origin, "[selection]: " + _unknown_keys(unknown, SELECTION_KEYS))
-    selection = Selection(**sel_raw)
-    _expect(isinstance(selection.kind, str) and selection.kind in SELECTION_KINDS, origin,
-            f"selection kind {selection.kind!r} is not one of {', '.join(SELECTION_KINDS)}")
-    _expect(isinstance(selection.criterion, str) and selection.criterion in CRITERIA, origin,
-            f"selection criterion {selection.criterion!r} is not one of {', '.join(CRITERIA)}")
-    _expect(_is(selection.resamples, int) and selection.resamples >= 1, origin, "selection resamples must be an integer >= 1")
-    _expect(_is(selection.folds, int) and selection.folds >= 2, origin, "selection folds must be an integer >= 2")
-    _expect(isinstance(selection.refit, bool), origin, f"selection refit must be true or false, got {selection.refit!r}")
-    method_options = raw.get("method_options", {})
-    _expect(isinstance(method_options, dict) and all(isinstance(v, dict) for v in method_options.values()),
-            origin, "[methods.NAME] entries must be tables of options")
+    split = check_split(v["split"], origin)
+    problem = SELECTION.unknown(list(v["selection"]), "key(s)", "allowed")
+    _expect(problem is None, origin, f"[selection]: {problem}")
+    selection = Selection(**SELECTION.validate(v["selection"], origin, SpecError, name="selection {key}"))
+    method_options = v["method_options"]
+    _expect(all(isinstance(o, dict) for o in method_options.values()), origin,
+            "[methods.NAME] entries must be tables of options")
     stray = set(method_options) - set(methods)
     _expect(not stray, origin, f"options given for method(s) not run: {', '.join(sorted(stray))}")
     return ExperimentSpec(
         name=name, dataset=dataset, targets=tuple(targets), methods=tuple(methods), mode=mode,
-        windows=tuple(float(w) for w in windows), repetitions=reps, seed=seed, train_size=train_size,
-        interval=interval, roles=dict(roles), split=split, selection=selection,
+        windows=tuple(float(w) for w in windows), repetitions=v["repetitions"], seed=v["seed"],
+        train_size=v["train_size"], interval=v["interval"], roles=dict(v["roles"]), split=split, selection=selection,
         method_options={k: dict(v) for k, v in method_options.items()},
         description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
         init_samples=init_samples,
