@@ -10,7 +10,6 @@ mistake is one :class:`SpecError` line starting with the spec's path.
 from __future__ import annotations
 
 import difflib
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,26 +18,58 @@ from typing import Any, Mapping
 from enginebench.datasets.dataset import SEGMENT, TIME
 from enginebench.datasets.schema import Column, Schema
 from enginebench.datasets.validate import DATETIME, TIME_UNITS
+from enginebench.declare import (Declaration, Invalid, anything, choice, did_you_mean, flag, number, positive, table,
+                                 text, whole)
 from enginebench.errors import DataError, SpecError
 
 REQUIRED_KEYS = ("name", "dt", "columns")
-OPTIONAL_KEYS = (
-    "files",
-    "records",
-    "time",
-    "time_unit",
-    "gap_tolerance",
-    "segment",
-    "record",
-    "rate_column",
-    "period_column",
-    "delimiter",
-    "provenance",
-    "licence",
-    "min_segment_rows",
-    "drop_short_segments",
-    "dt_tolerance",
+
+
+def _delimiter(value: Any) -> Any:
+    if len(value) != 1 or value in "\"\r\n":
+        raise Invalid(DELIMITER)
+    return value
+
+
+def _any_text(value: Any) -> str:
+    if not isinstance(value, str):
+        raise Invalid("{name} must be a string, got {value}")
+    return value
+
+
+DELIMITER = '{name} must be one character such as "," ";" or "\\t", got {value}'
+SECONDS = "{name} must be a positive number of seconds, got {value}"
+KEYS = Declaration(
+    text("name", None, "the dataset's name"),
+    positive("dt", None, "sample period", unit="s", message=SECONDS),
+    table("columns", None, 'column = { role = "input" | "output" | "internal" | "group", unit = "..." }'),
+    anything("files", None, "data files (CSV, TSV or Parquet), relative to the spec's folder",
+             type_label="list[str]"),
+    table("records", None, "[records.NAME] tables: a record read from columns of a file"),
+    text("time", None, "the files' time column; absent: time = sample index x dt"),
+    choice("time_unit", "s", "unit of the time column", (*TIME_UNITS, DATETIME),
+           message="{name} {value} is not one of " + ", ".join((*TIME_UNITS, DATETIME))),
+    positive("gap_tolerance", None, "a time step longer than this splits a segment; default 1.5 dt", unit="s",
+             message=SECONDS),
+    text("segment", None, "column whose value groups rows into segments"),
+    text("record", None, "column whose change of value starts a new record"),
+    text("rate_column", None, "a sample-rate column checked against dt, never imported", unit="Hz"),
+    text("period_column", None, "a sample-period column checked against dt, never imported", unit="s"),
+    text("delimiter", None, "CSV delimiter; default a tab for .tsv files, else a comma", check=_delimiter,
+         message=DELIMITER),
+    anything("provenance", "", "where the data come from", check=_any_text),
+    anything("licence", "", "the data's licence", check=_any_text),
+    whole("min_segment_rows", 2, "shortest segment accepted", low=1, unit="rows"),
+    flag("drop_short_segments", False, "drop segments shorter than min_segment_rows instead of refusing them"),
+    number("dt_tolerance", 1e-6, "relative tolerance of a time step against a multiple of dt", low=0, high=0.5,
+           high_open=True),
+    anything("physical_model", None, "[physical_model] table: an FMU physical model (datasets/fmu_spec.py)",
+             type_label="table"),
 )
+"""Every key of an import spec (the keys' full story is in :mod:`enginebench.datasets.importer`)."""
+OPTIONAL_KEYS = tuple(k for k in KEYS.names() if k not in REQUIRED_KEYS)
+
+
 ALLOWED_KEYS = REQUIRED_KEYS + OPTIONAL_KEYS
 COLUMN_KEYS = ("role", "unit")
 RECORD_KEYS = ("file", "columns", "time")
@@ -102,16 +133,7 @@ def one_line(text: str) -> str:
 
 
 def _unknown(where: Path, kind: str, key: str, allowed: tuple[str, ...]) -> SpecError:
-    close = difflib.get_close_matches(key, allowed, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return SpecError(f"{where}: unknown {kind} {key!r}{hint}; allowed: {', '.join(allowed)}")
-
-
-def _number(path: Path, doc: Mapping[str, Any], key: str, default: float | None = None) -> float:
-    v = doc.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise SpecError(f"{path}: {key} must be a positive number of seconds, got {v!r}")
-    return float(v)
+    return SpecError(f"{where}: unknown {kind} {key!r}{did_you_mean(key, allowed)}; allowed: {', '.join(allowed)}")
 
 
 def _text(path: Path, doc: Mapping[str, Any], key: str, default: str | None = None, *, empty_ok: bool = False) -> str:
@@ -220,10 +242,6 @@ def _records(path: Path, doc: Mapping[str, Any], schema: Schema, time: str | Non
     return tuple(_record(path, str(name), table, schema, time) for name, table in tables.items())
 
 
-def _optional_column(path: Path, doc: Mapping[str, Any], key: str) -> str | None:
-    return _text(path, doc, key) if key in doc else None
-
-
 # -- the whole spec ----------------------------------------------------------------------------
 def load_spec(spec_path: str | Path) -> ImportSpec:
     """Read and check an import spec file (see :mod:`enginebench.datasets.importer` for its keys)."""
@@ -242,7 +260,7 @@ def load_spec(spec_path: str | Path) -> ImportSpec:
 def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
     """Check a spec document; ``path`` names it in messages and its folder anchors the file paths."""
     for key in doc:
-        if key not in ALLOWED_KEYS:
+        if key not in KEYS:
             raise _unknown(path, "key", key, ALLOWED_KEYS)
     present = set(doc) | ({"files"} if "records" in doc else set())
     missing = [k for k in ("name", "files", "dt", "columns") if k not in present]
@@ -253,8 +271,9 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         )
     if missing:
         raise SpecError(f"{path}: missing required key(s) {', '.join(missing)}; {NEEDS}")
+    v = KEYS.validate(doc, str(path), SpecError, name="{key}")
     files = _files(path, doc)
-    time = _text(path, doc, "time") if "time" in doc else None
+    time = v["time"]
     if time is None:
         for key in ("time_unit", "gap_tolerance"):
             if key in doc:
@@ -262,27 +281,13 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
                     f"{path}: {key} applies to a time column but the spec has no time key; remove {key} "
                     '(time is the sample index x dt) or name the column with time = "COL"'
                 )
-    time_unit = _text(path, doc, "time_unit", "s")
-    if time_unit not in (*TIME_UNITS, DATETIME):
-        raise SpecError(f"{path}: time_unit {time_unit!r} is not one of {', '.join(TIME_UNITS)}, {DATETIME}")
-    dt = _number(path, doc, "dt")
-    gap = _number(path, doc, "gap_tolerance", 1.5 * dt)
+    time_unit = v["time_unit"]
+    dt = float(v["dt"])
+    gap = float(v["gap_tolerance"]) if v["gap_tolerance"] is not None else 1.5 * dt
     if gap < dt:
         raise SpecError(f"{path}: gap_tolerance = {gap:g} s is shorter than dt = {dt:g} s; make it at least dt")
-    min_rows = doc.get("min_segment_rows", 2)
-    if isinstance(min_rows, bool) or not isinstance(min_rows, int) or min_rows < 1:
-        raise SpecError(f"{path}: min_segment_rows must be a whole number >= 1, got {min_rows!r}")
-    drop = doc.get("drop_short_segments", False)
-    if not isinstance(drop, bool):
-        raise SpecError(f"{path}: drop_short_segments must be true or false, got {drop!r}")
-    tol = doc.get("dt_tolerance", 1e-6)
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0 <= tol < 0.5:
-        raise SpecError(f"{path}: dt_tolerance must be a number in [0, 0.5), got {tol!r}")
-    delimiter = doc.get("delimiter")
-    if delimiter is not None and (not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\"\r\n"):
-        raise SpecError(f'{path}: delimiter must be one character such as "," ";" or "\\t", got {delimiter!r}')
-    segment = _optional_column(path, doc, "segment")
-    record = _optional_column(path, doc, "record")
+    min_rows, drop, tol, delimiter = v["min_segment_rows"], v["drop_short_segments"], v["dt_tolerance"], v["delimiter"]
+    segment, record = v["segment"], v["record"]
     if segment is not None and record is not None:
         raise SpecError(
             f"{path}: segment and record are both given; use record = \"COL\" (a new record where the value "
@@ -308,8 +313,7 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
             raise SpecError(f"{path}: the {key} column and the time column are both {time!r}; they must differ")
         if not files:
             raise SpecError(f"{path}: {key} = {group!r} names records inside the files of files = [...], but there are none")
-    rate_column = _optional_column(path, doc, "rate_column")
-    period_column = _optional_column(path, doc, "period_column")
+    rate_column, period_column = v["rate_column"], v["period_column"]
     for k, col in (("rate_column", rate_column), ("period_column", period_column)):
         if col is not None and (col in schema or col in (time, group)):
             raise SpecError(
@@ -335,7 +339,7 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
             )
     return ImportSpec(
         path=path,
-        name=_text(path, doc, "name"),
+        name=v["name"],
         files=files,
         time=time,
         dt=dt,
@@ -345,8 +349,8 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         segment=segment,
         record=record,
         delimiter=delimiter,
-        provenance=_text(path, doc, "provenance", "", empty_ok=True),
-        licence=_text(path, doc, "licence", "", empty_ok=True),
+        provenance=v["provenance"],
+        licence=v["licence"],
         min_segment_rows=min_rows,
         drop_short_segments=drop,
         dt_tolerance=float(tol),
