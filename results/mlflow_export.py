@@ -210,11 +210,11 @@ def registry_family(method: str) -> str | None:
 def job_records(run: Run) -> pd.DataFrame:
     """One row per finished job: method, family, target, window, split, repetition, status, params (flattened dict)."""
     rows = []
-    for key in sorted(run.finished_jobs()):
-        meta = run.job_meta(key)
-        parts = key.split("__")
+    for key, meta in sorted(run.job_metas().items()):
+        parts = key.split("__")  # runs written before the metadata named the split: the key's third part
+        split = meta.get("split", parts[2] if len(parts) >= 5 else "")
         rows.append({"method": str(meta.get("method")), "family": meta.get("family"), "target": str(meta.get("target")),
-                     "window": float(meta.get("window", 0.0)), "split": parts[2] if len(parts) >= 5 else "",
+                     "window": float(meta.get("window", 0.0)), "split": str(split),
                      "repetition": int(meta.get("repetition", -1)), "status": meta.get("status"),
                      "params": flatten(meta.get("params", {}) or {}) if meta.get("status") == "ok" else {}})
     return pd.DataFrame(rows, columns=["method", "family", "target", "window", "split", "repetition", "status",
