@@ -17,36 +17,42 @@ def _metric_list(text: str | None) -> list[str] | None:
 
 @click.command()
 @click.argument("run_a", metavar="RUN_A")
-@click.argument("run_b", metavar="RUN_B", default="latest")
+@click.argument("others", metavar="RUN_B [RUN_C ...]", nargs=-1)
 @click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True,
               help="Comma-separated metrics to compare, or 'all'.")
 @click.option("--format", "fmt", type=click.Choice(["term", "csv"]), default="term", show_default=True,
-              help="term: statements and a table; csv: one row per compared metric with every column.")
+              help="term: statements and a table; csv: one row per compared metric with every column "
+                   "(with several runs, led by the ids run_a and run_b).")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: RUN_A's].")
 @click.option("--output", "-o", type=click.Path(dir_okay=False), default=None, help="Write to a file instead of standard output.")
 @store_option
-def compare(run_a: str, run_b: str, metrics: str, fmt: str, interval, output, store) -> None:
-    """Compare RUN_B with RUN_A (the reference) per method and metric.
+def compare(run_a: str, others: tuple[str, ...], metrics: str, fmt: str, interval, output, store) -> None:
+    """Compare RUN_B (default: latest), and RUN_C ..., with RUN_A (the reference) per method and metric.
 
     For each (target, mode, window, split, method, metric) in both runs: both means with
     their intervals, the difference B - A with a 95% interval, a t-test and a rank test
     (paired t and Wilcoxon when the repetitions pair up, i.e. both runs have the same
     dataset, seed, training size, split, roles and mode; otherwise Welch t and
     Mann-Whitney U), and a plain statement of what moved outside RUN_A's interval.
+    With three runs or more, each later run is compared with RUN_A the same way, after a
+    side-by-side table of all runs and one note per run on what was compared and skipped.
     """
-    from enginebench.results.compare import comparison_table, compare_runs, statements
+    from enginebench.results.compare import comparison_table, compare_many, many_csv, many_text, statements
     from enginebench.results.store import RunStore
 
     check_output(output)
     rs = RunStore(store)
     wanted = _metric_list(metrics)
-    cmp = compare_runs(rs.get(run_a), rs.get(run_b), interval=interval, metric_names=wanted)
-    if wanted and "metric" in cmp.table:
-        check_metrics(wanted, cmp.table["metric"], "--metrics", "")
-    if fmt == "csv":
-        text = cmp.table.to_csv(index=False)
+    runs = [rs.get(ref) for ref in (run_a, *(others or ("latest",)))]
+    cmps = compare_many(runs, interval=interval, metric_names=wanted)
+    if wanted:
+        check_metrics(wanted, [m for c in cmps if "metric" in c.table for m in c.table["metric"]], "--metrics", "")
+    if len(cmps) > 1:
+        text = many_csv(cmps) if fmt == "csv" else many_text(cmps)
+    elif fmt == "csv":
+        text = cmps[0].table.to_csv(index=False)
     else:
-        text = comparison_table(cmp) + "\n" + "\n".join(statements(cmp)) + "\n"
+        text = comparison_table(cmps[0]) + "\n" + "\n".join(statements(cmps[0])) + "\n"
     emit(text, output)
 
 

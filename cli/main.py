@@ -78,13 +78,13 @@ def cli() -> None:
 
 def _register() -> None:
     from enginebench.cli import calibrate, compare, datasets, layout, learning_curve, methods, rank, run, table
-    from enginebench.cli import report
+    from enginebench.cli import report, runs
 
     cli.add_command(run.run)
     cli.add_command(datasets.datasets)
     cli.add_command(methods.methods)
     cli.add_command(table.table)
-    cli.add_command(table.runs)
+    cli.add_command(runs.runs)
     cli.add_command(rank.rank)
     cli.add_command(compare.compare)
     cli.add_command(compare.guard)

@@ -1,4 +1,7 @@
-"""Compare two stored runs metric by metric: differences, tests, and what moved beyond its interval.
+"""Compare stored runs metric by metric: differences, tests, and what moved beyond its interval.
+
+Two runs: A (the reference) and B. Several runs: every later run against the first
+(``compare_many``), shown side by side (``side_by_side``) and pair by pair.
 
 ``compare_metrics`` joins the summaries of run A (the reference) and run B on (target,
 mode, window, method, split, metric) and, for every row, reports
@@ -41,13 +44,19 @@ __all__ = [
     "Comparison",
     "JOIN",
     "PAIRING_KEYS",
+    "compare_many",
     "compare_metrics",
     "compare_runs",
     "comparison_table",
+    "coverage_note",
     "lower_is_better",
+    "many_csv",
+    "many_text",
     "num",
     "pairing",
     "repetition_values",
+    "run_labels",
+    "side_by_side",
     "statements",
     "text_table",
     "welch_interval",
@@ -169,6 +178,7 @@ def compare_metrics(
     tests = [_test_row(groups[0].get(k), groups[1].get(k), paired, level)
              for k in merged[JOIN].itertuples(index=False, name=None)]
     out = merged.rename(columns={"n_repeats_a": "n_a", "n_repeats_b": "n_b"})
+    out = out.astype({"n_a": int, "n_b": int})  # counts (the outer merge made them floats: "n 4.0 vs 4.0")
     out["lower_is_better"] = [lower_is_better(m) for m in out["metric"]]
     test_cols = ["difference", "diff_low", "diff_high", "n_pairs", "t_test", "t_pvalue", "rank_test", "rank_pvalue",
                  "test_note"]
@@ -251,11 +261,14 @@ def _pvalues(r) -> str:
     return f"{r.t_test} p = {num(r.t_pvalue, 2)}, {r.rank_test} p = {num(r.rank_pvalue, 2)} ({n})"
 
 
-def statements(cmp: Comparison) -> list[str]:
-    """Plain sentences: how the runs pair up, what changed beyond A's interval, what is in one run only."""
+def statements(cmp: Comparison, b: str = "B") -> list[str]:
+    """Plain sentences: how the runs pair up, what changed beyond A's interval, what is in one run only.
+
+    ``b`` is the compared run's label (C, D... when several runs are compared with A).
+    """
     t = cmp.table
     tests = "paired t-test and Wilcoxon signed-rank test" if cmp.paired else "Welch t-test and Mann-Whitney U test"
-    lines = [f"A = {cmp.run_a}, B = {cmp.run_b}; differences are B - A.",
+    lines = [f"A = {cmp.run_a}, {b} = {cmp.run_b}; differences are {b} - A.",
              f"Repetitions {'pair up' if cmp.paired else 'do not pair up'}: {cmp.pairing_reason}; tests: {tests}."]
     lines += [f"Note: {n}." for n in cmp.notes]
     changed = t[t["verdict"] != "within"]
@@ -268,7 +281,7 @@ def statements(cmp: Comparison) -> list[str]:
         for r in changed.itertuples():
             rel = f", {r.relative:+.1%}" if np.isfinite(r.relative) else ""
             lines.append(
-                f"  {r.method} {r.metric} ({_where(r)}): {r.verdict} in B, {num(r.mean_a)} -> {num(r.mean_b)} "
+                f"  {r.method} {r.metric} ({_where(r)}): {r.verdict} in {b}, {num(r.mean_a)} -> {num(r.mean_b)} "
                 f"({r.difference:+.3g}{rel}); "
                 f"A's interval [{num(r.ci_low_a)}, {num(r.ci_high_a)}]; difference 95% CI "
                 f"[{num(r.diff_low, 3)}, {num(r.diff_high, 3)}]; {_pvalues(r)}"
@@ -283,17 +296,17 @@ def statements(cmp: Comparison) -> list[str]:
         rest = only[~only["method"].isin(methods)]
         parts = [f"method(s) {', '.join(methods)}"] if methods else []
         parts += [f"{len(rest)} other metric row(s)"] if len(rest) else []
-        lines.append(f"Only in {side} ({name}), not compared: {'; '.join(parts)}.")
+        lines.append(f"Only in {b if side == 'B' else side} ({name}), not compared: {'; '.join(parts)}.")
     return lines
 
 
-def comparison_table(cmp: Comparison) -> str:
-    """All compared rows as a fixed-width table; key columns that never change go to a caption line."""
+def comparison_table(cmp: Comparison, b: str = "B") -> str:
+    """All compared rows as a fixed-width table; key columns that never change go to a caption line (``b``: B's label)."""
     t = cmp.table
     keys = ["target", "mode", "window", "split", "method", "metric"]
     fixed = [k for k in keys[:4] if t[k].nunique() == 1 and len(t)]
     shown = [k for k in keys if k not in fixed]
-    header = shown + ["A mean [interval]", "B mean [interval]", "B - A [95% CI]", "p (t)", "p (rank)", "verdict"]
+    header = shown + ["A mean [interval]", f"{b} mean [interval]", f"{b} - A [95% CI]", "p (t)", "p (rank)", "verdict"]
     rows = []
     for r in t.itertuples():
         keycells = [f"{float(getattr(r, k)):g}" if k == "window" else str(getattr(r, k)) for k in shown]
@@ -306,3 +319,93 @@ def comparison_table(cmp: Comparison) -> str:
     caption = ", ".join(f"{k} {float(t[k].iloc[0]):g}" if k == "window" else f"{k} {t[k].iloc[0]}" for k in fixed)
     right = [False] * len(shown) + [True] * 5 + [False]
     return (caption + "\n" if caption else "") + text_table(header, rows, right)
+
+
+# -- several runs against the first ----------------------------------------------------------
+
+def run_labels(n: int) -> list[str]:
+    """Labels of ``n`` compared runs: A (the reference), B, C, ..., Z, then R27, R28..."""
+    return [chr(ord("A") + i) if i < 26 else f"R{i + 1}" for i in range(n)]
+
+
+def compare_many(runs: Sequence, *, interval: str | None = None,
+                 metric_names: Sequence[str] | None = None) -> list[Comparison]:
+    """Every later run against the first (``compare_runs(first, later)``), all with the first run's interval kind."""
+    if len(runs) < 2:
+        raise DataError(f"compare needs at least 2 runs, got {len(runs)}")
+    interval = interval or runs[0].config().get("interval", "t")
+    return [compare_runs(runs[0], other, interval=interval, metric_names=metric_names) for other in runs[1:]]
+
+
+def _names(values) -> str:
+    return ", ".join(sorted(map(str, values))) or "none"
+
+
+def coverage_note(cmp: Comparison, b: str = "B") -> str:
+    """One line: which methods and targets of ``b`` were compared with A, and what was skipped (in one run only)."""
+    t, u = cmp.table, cmp.unmatched
+    said = f"{b} vs A: compared {len(t)} metric row(s) of method(s) {_names(set(t['method']))} on target(s) " \
+           f"{_names(set(t['target']))}"
+    skipped = []
+    for side, label in (("A", "A"), ("B", b)):
+        only = u[u["only_in"] == side]
+        methods = set(only["method"]) - set(t["method"]) - set(u.loc[u["only_in"] != side, "method"])
+        targets = set(only["target"]) - set(t["target"]) - set(u.loc[u["only_in"] != side, "target"])
+        rest = only[~only["method"].isin(methods) & ~only["target"].isin(targets)]
+        skipped += [f"method(s) {_names(methods)} only in {label}"] if methods else []
+        skipped += [f"target(s) {_names(targets)} only in {label}"] if targets else []
+        skipped += [f"{len(rest)} other metric row(s) only in {label}"] if len(rest) else []
+    return f"Note: {said}; skipped: {'; '.join(skipped) if skipped else 'nothing'}."
+
+
+def side_by_side(comparisons: Sequence[Comparison]) -> str:
+    """One row per (target, mode, window, split, method, metric) of A that a later run has, one column group per
+    run: A's mean [interval], then each later run's mean [interval] and its difference from A ('-' where it lacks
+    the row). Key columns that never change go to a caption line, as in ``comparison_table``."""
+    labels = run_labels(len(comparisons) + 1)
+    by_key: list[dict] = [{k: r for k, r in zip(c.table[JOIN].itertuples(index=False, name=None), c.table.itertuples())}
+                          for c in comparisons]
+    order = list(dict.fromkeys(k for found in by_key for k in found))
+    keys = ["target", "mode", "window", "split", "method", "metric"]
+    frame = pd.DataFrame(order, columns=JOIN)
+    fixed = [k for k in keys[:4] if len(frame) and frame[k].nunique() == 1]
+    shown = [k for k in keys if k not in fixed]
+    header = shown + ["A mean [interval]"]
+    for b in labels[1:]:
+        header += [f"{b} mean [interval]", f"{b} - A"]
+    rows = []
+    for key in order:
+        named = dict(zip(JOIN, key))
+        first = next(found[key] for found in by_key if key in found)
+        cells = [f"{float(named[k]):g}" if k == "window" else str(named[k]) for k in shown]
+        cells.append(f"{num(first.mean_a)} [{num(first.ci_low_a)}, {num(first.ci_high_a)}]")
+        for found in by_key:
+            r = found.get(key)
+            cells += ([f"{num(r.mean_b)} [{num(r.ci_low_b)}, {num(r.ci_high_b)}]", num(r.difference, 3)]
+                      if r is not None else ["-", "-"])
+        rows.append(cells)
+    caption = ", ".join(f"{k} {float(frame[k].iloc[0]):g}" if k == "window" else f"{k} {frame[k].iloc[0]}"
+                        for k in fixed)
+    right = [False] * len(shown) + [True] * (1 + 2 * len(comparisons))
+    return (caption + "\n" if caption else "") + text_table(header, rows, right)
+
+
+def many_text(comparisons: Sequence[Comparison]) -> str:
+    """The report of several runs against the first: who is who, a coverage note per run, the side-by-side table,
+    then each run's own comparison with A (its table and statements, as for two runs)."""
+    labels = run_labels(len(comparisons) + 1)
+    ids = [comparisons[0].run_a] + [c.run_b for c in comparisons]
+    lines = ["Runs: " + ", ".join(f"{b} = {i}" for b, i in zip(labels, ids)) + "; each later run is compared with A."]
+    lines += [coverage_note(c, b) for c, b in zip(comparisons, labels[1:])]
+    text = "\n".join(lines) + "\n\nSide by side (mean [interval] of each run; X - A: difference of the means):\n"
+    text += side_by_side(comparisons)
+    for c, b in zip(comparisons, labels[1:]):
+        text += f"\n{b} - A:\n" + comparison_table(c, b) + "\n" + "\n".join(statements(c, b)) + "\n"
+    return text
+
+
+def many_csv(comparisons: Sequence[Comparison]) -> str:
+    """One CSV of every comparison's table, each row led by the two runs' ids (``run_a``, ``run_b``)."""
+    frames = [c.table.assign(run_a=c.run_a, run_b=c.run_b) for c in comparisons]
+    out = pd.concat(frames, ignore_index=True)
+    return out[["run_a", "run_b"] + COMPARE_COLUMNS].to_csv(index=False)

@@ -100,3 +100,30 @@ def linear_raw(n_seg: int = 3, n: int = 300, seed: int = 0) -> RawSegments:
 
 def sim_samples(raw: RawSegments, init_samples: int = 0) -> Samples:
     return SamplePool(raw, ["y"], "simulation", init_samples=init_samples).materialize()
+
+
+def stored_run(store, name: str, values: dict[str, list[float]], *, dataset: str = "d", seed: int = 1,
+               targets: tuple[str, ...] = ("y",), status: str = "finished", n_jobs: int | None = None,
+               created_ns: int | None = None, tags: dict[str, str] | None = None, failed: int = 0,
+               method_options: dict | None = None):
+    """A run folder written through the store's API, without running anything (fast catalogue and compare tests).
+
+    ``values`` is {method: [mae of repetition 0, 1, ...]}: one job per (method, repetition), each with the rows
+    mae = v + k and rmse = 2 v + k of the k-th target (static mode, window 0, split test). ``status`` "running"
+    leaves the run locked by this process, as a writer does.
+    """
+    cfg = {"name": name, "dataset": dataset, "seed": seed, "mode": "static", "interval": "t", "targets": list(targets),
+           "methods": list(values), "method_options": method_options or {}}
+    jobs = [(m, r, v) for m, vs in values.items() for r, v in enumerate(vs)]
+    run = store.create(name, cfg, f"{seed:06d}{name}", {"python": "test"}, n_jobs or len(jobs), plugins=[], tags=tags)
+    for m, r, v in jobs:
+        rows = pd.DataFrame([{"dataset": dataset, "target": t, "mode": "static", "window": 0.0, "method": m,
+                              "family": "test", "repetition": r, "split": "test", "metric": metric,
+                              "value": v * f + k, "status": "ok"}
+                             for k, t in enumerate(targets) for metric, f in (("mae", 1.0), ("rmse", 2.0))])
+        run.write_job(f"{m}-r{r}", rows, {"status": "ok", "method": m})
+    if created_ns is not None:
+        run.update_info(created_ns=created_ns)
+    if status != "running":
+        run.update_info(status=status, finished_jobs=len(jobs), failed_jobs=failed)
+    return run

@@ -1,0 +1,147 @@
+"""``enginebench runs``: the run catalogue (list with filters, show, tag, untag, rm)."""
+
+from __future__ import annotations
+
+import shutil
+
+import click
+
+from enginebench.cli.options import store_option
+
+
+@click.group()
+def runs() -> None:
+    """List, inspect, tag and remove the runs of a store."""
+
+
+@runs.command("list")
+@click.option("--dataset", default=None, help="Only runs on this dataset (its name, or a dataset file's name).")
+@click.option("--method", default=None, help="Only runs that used this method (a cascade's stages count).")
+@click.option("--status", "statuses", multiple=True, metavar="STATUS",
+              help="Only runs with this status (repeatable, any matches): finished, failed (finished with failed "
+                   "jobs), running, interrupted, damaged.")
+@click.option("--tag", "tags", multiple=True, metavar="KEY[=VALUE]",
+              help="Only runs with this tag (repeatable, all must match); KEY alone matches any value.")
+@click.option("--since", default=None, help="Only runs created since: an ISO date/time (2025-01-31, 2025-01-31T14:30, "
+                                            "local time) or an age (30m, 2h, 3d, 1w).")
+@click.option("--format", "fmt", type=click.Choice(["term", "csv", "json"]), default="term", show_default=True)
+@click.option("--width", type=click.IntRange(min=20), default=None,
+              help="Columns of the term table [default: the terminal's, 80 when not a terminal].")
+@store_option
+def runs_list(dataset, method, statuses, tags, since, fmt, width, store) -> None:
+    """A table of the runs: id, status, jobs done/total, created, wall time, name, dataset, methods, tags.
+
+    The term table fits the width: the least useful columns are trimmed, then dropped
+    (never the id). A damaged run is listed with its reason.
+    """
+    import json
+
+    from enginebench.results import catalog
+    from enginebench.results.store import RunStore
+
+    filters = catalog.Filters.parse(dataset=dataset, method=method, statuses=statuses, tags=tags, since=since)
+    rs = RunStore(store)
+    found = catalog.select(catalog.entries(rs), filters)
+    if fmt == "json":
+        click.echo(json.dumps(catalog.catalog_records(found), indent=2))
+    elif fmt == "csv":
+        click.echo(catalog.catalog_csv(found), nl=False)
+    elif not rs.runs():
+        click.echo(f"no runs in {rs.root}")
+    elif not found:
+        click.echo(f"no run in {rs.root} matches the filters")
+    else:
+        click.echo(catalog.catalog_text(found, width or shutil.get_terminal_size((80, 24)).columns), nl=False)
+
+
+@runs.command("show")
+@click.argument("run_ref", metavar="RUN", default="latest")
+@store_option
+def runs_show(run_ref: str, store) -> None:
+    """Config, environment, tags, plugin files, failure reasons and warnings, timings and a per-method summary of RUN."""
+    import json
+
+    from enginebench.results.notes import note_lines
+    from enginebench.results.store import RunStore
+    from enginebench.results.tables import summarize
+
+    run = RunStore(store).get(run_ref)
+    info, cfg, env = run.info(), run.config(), run.environment()
+    plugins = run.plugins() or []
+    metrics = run.metrics() if run.job_files() else None  # read first: a damaged job file is the only line printed
+    notes = note_lines(run.job_notes())
+    click.echo(f"run {run.id}: {info.get('status')} ({info['finished_jobs'] if 'finished_jobs' in info else len(run.finished_jobs(verify=False))}/{info.get('n_jobs')} jobs, "
+               f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
+    click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "
+               f"mode {cfg.get('mode')}, windows {cfg.get('windows')}; {cfg.get('repetitions')} repetitions, seed {cfg.get('seed')}")
+    if info.get("tags"):
+        click.echo("tags: " + ", ".join(f"{k}={v}" for k, v in info["tags"].items()))
+    click.echo(f"environment: python {env.get('python')}, {env.get('cpu')} x{env.get('cpu_count')}, gpu {env.get('gpu')}, "
+               f"git {env.get('git_commit')}")
+    click.echo("packages: " + json.dumps(env.get("packages", {})))
+    for rec in plugins:
+        click.echo(f"plugin file: {rec.get('path')} (sha256 {str(rec.get('sha256'))[:12]}; "
+                   f"methods {', '.join(map(str, rec.get('methods', [])))})")
+    if notes:
+        click.echo("\nwhat the jobs said (distinct failure reasons and warnings, with counts):")
+        for line in notes:
+            click.echo("  " + line)
+    if metrics is None:
+        click.echo("\nno finished job yet")
+        return
+    times = metrics[metrics["metric"].str.startswith("time_")].groupby(["method", "metric"])["value"].mean().unstack()
+    click.echo("\nmean seconds per job:\n" + times.round(3).to_string())
+    summary = summarize(metrics, interval=cfg.get("interval", "t"))
+    main = summary[summary["metric"].isin(["mae", "rmae"])][["target", "window", "split", "method", "metric", "mean", "ci_low", "ci_high", "n_repeats", "n_failed"]]
+    click.echo("\n" + main.to_string(index=False))
+
+
+def _edited(run, tags: dict[str, str]) -> None:
+    shown = ", ".join(f"{k}={v}" for k, v in tags.items()) or "none"
+    click.echo(f"run {run.id}: tags {shown}")
+
+
+@runs.command("tag")
+@click.argument("run_ref", metavar="RUN")
+@click.argument("pairs", metavar="KEY=VALUE...", nargs=-1, required=True)
+@store_option
+def runs_tag(run_ref: str, pairs, store) -> None:
+    """Set tags of RUN (a key it has already gets the new value); prints the run's tags."""
+    from enginebench.results.catalog import edit_tags, parse_tags
+    from enginebench.results.store import RunStore
+
+    tags = parse_tags(pairs, "runs tag")
+    run = RunStore(store).get(run_ref)
+    _edited(run, edit_tags(run, add=tags))
+
+
+@runs.command("untag")
+@click.argument("run_ref", metavar="RUN")
+@click.argument("keys", metavar="KEY...", nargs=-1, required=True)
+@store_option
+def runs_untag(run_ref: str, keys, store) -> None:
+    """Remove the tags KEY... from RUN; prints the run's tags."""
+    from enginebench.results.catalog import edit_tags
+    from enginebench.results.store import RunStore
+
+    run = RunStore(store).get(run_ref)
+    _edited(run, edit_tags(run, remove=keys))
+
+
+@runs.command("rm")
+@click.argument("run_refs", metavar="RUN...", nargs=-1, required=True)
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+@store_option
+def runs_rm(run_refs, yes: bool, store) -> None:
+    """Delete runs from the store."""
+    from enginebench.results.store import RunStore
+
+    rs = RunStore(store)
+    targets = [rs.get(ref) for ref in run_refs]
+    if not yes:
+        click.confirm(f"delete {len(targets)} run(s): {', '.join(r.id for r in targets)}?", abort=True)
+    for r in targets:
+        r.lock()  # a run another process is writing is refused, naming that process
+        shutil.rmtree(r.path)
+        r.unlock()
+        click.echo(f"deleted {r.id}")
