@@ -125,7 +125,8 @@ def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[
                                                    label=label, max_points=max_points),
                                     f"{where}: measured vs predicted on the {about}"))
     page.add("series", "Time series", trends)
-    page.add("scatter", "Measured vs predicted", scatters)
+    page.add("scatter", "Measured vs predicted", ["<div class=\"grid\">\n" + "".join(scatters) + "</div>\n"]
+             if scatters else [])
 
 
 def _table_section(page: _Page, summary: pd.DataFrame, metrics: Sequence[str], units: dict[str, str]) -> None:
@@ -161,7 +162,8 @@ def _strip_section(page: _Page, raw: pd.DataFrame, metrics: Sequence[str], units
         title = f"{metric} per repetition"
         figs.append(page.figure(strip_figure(rows, title=title, y_label=header(metric, unit)),
                                 f"{metric} of each repetition (one point each; hover for its number)"))
-    page.add("repetitions", "Metrics per repetition", figs)
+    page.add("repetitions", "Metrics per repetition", ["<div class=\"grid\">\n" + "".join(figs) + "</div>\n"]
+             if figs else [])
 
 
 def _validation_section(page: _Page, run: Run) -> str | None:
@@ -191,7 +193,8 @@ table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; }
 th { background: #f2f2f2; cursor: pointer; user-select: none; }
 th[data-order=asc]::after { content: " \\25B2"; } th[data-order=desc]::after { content: " \\25BC"; }
-figure { margin: 0.8em 0 1.6em 0; } figcaption { color: #444; font-size: 0.9em; }
+figure { margin: 0.8em 0 1.6em 0; min-width: 0; }
+.grid { display: grid; grid-template-columns: repeat(auto-fill, minmax(560px, 1fr)); gap: 0 1.5em; } figcaption { color: #444; font-size: 0.9em; }
 pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; font-size: 0.85em; }
 .synthetic { color: #a00; font-weight: bold; } .note { color: #555; } .failed { color: #a00; }
 """

@@ -214,11 +214,14 @@ def scatter_figure(
                                  marker={"size": 4, "color": PALETTE[k % len(PALETTE)]}))
     both = np.concatenate(finite)
     lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
+    pad = 0.03 * (hi - lo) if hi > lo else 1.0
     fig.add_trace(go.Scatter(x=[lo, hi], y=[lo, hi], mode="lines", name="identity", line={"color": "black", "width": 1}))
     subtitle = f"{len(rows)} of {n} rows (evenly spaced)" if len(rows) < n else f"{n} rows"
-    fig.update_layout(title=_title(title, subtitle), height=520, margin={"l": 70, "r": 20, "t": 80, "b": 50},
-                      xaxis_title=f"measured {label}", yaxis_title=f"predicted {label}",
-                      yaxis={"scaleanchor": "x", "scaleratio": 1})
+    fig.update_layout(title=_title(title, subtitle), height=560, width=640, margin={"l": 70, "r": 20, "t": 80, "b": 50},
+                      xaxis={"title": f"measured {label}", "range": [lo - pad, hi + pad], "constrain": "domain"},
+                      yaxis={"title": f"predicted {label}", "range": [lo - pad, hi + pad], "scaleanchor": "x",
+                             "scaleratio": 1, "constrain": "domain"},
+                      legend={"orientation": "h", "y": -0.15, "x": 0})
     return fig
 
 
