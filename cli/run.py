@@ -26,9 +26,11 @@ from enginebench.cli.options import load_plugins, plugin_option, store_option
               help="Dask scheduler address (tcp://HOST:8786, e.g. of a dask-jobqueue SLURMCluster); "
                    "without it --executor dask starts a local cluster of --jobs workers.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.option("--tag", "tags", multiple=True, metavar="KEY=VALUE",
+              help="Label the run (repeatable); kept in its run.json, not in its config; `runs list --tag` filters on it.")
 @store_option
 @plugin_option
-def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, executor, scheduler, quiet, store,
+def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, executor, scheduler, quiet, tags, store,
         plugins) -> None:
     """Run EXPERIMENT (a built-in name or a .toml file) and store it as a run.
 
@@ -49,12 +51,17 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
 
     # a terminated run (SIGTERM from a scheduler or `timeout`) is recorded as interrupted
     signal.signal(signal.SIGTERM, lambda signum, frame: (_ for _ in ()).throw(SystemExit(128 + signum)))
+    from enginebench.results.catalog import parse_tags
+
+    tag_map = parse_tags(tags)
     load_plugins(plugins)
     store_obj = RunStore(store)
     resume = spec = None
     if resume_ref:
         if experiment or repeats or methods or seed is not None or train_size is not None:
             raise SpecError("--resume RUN takes the run's own config; give no EXPERIMENT or overrides with it")
+        if tag_map:
+            raise SpecError(f"--tag is for a new run; tag {resume_ref} with `enginebench runs tag {resume_ref} KEY=VALUE`")
         resume = store_obj.get(resume_ref)  # the store checks and prepares it (Run.prepare_resume)
         name = resume.id
     elif not experiment:
@@ -79,7 +86,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
 
         result = run_experiment(spec, store_obj, workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
                                 progress=tick, resume=resume, executor=executor or ("dask" if scheduler else "local"),
-                                scheduler=scheduler)
+                                scheduler=scheduler, tags=tag_map)
         progress.update(task, description=f"{name}: done")
     raw = result.run.metrics()
     cfg = result.run.config()

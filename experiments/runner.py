@@ -224,8 +224,9 @@ def run_experiment(
     resume: Run | None = None,
     executor: str = "local",
     scheduler: str | None = None,
+    tags: dict[str, str] | None = None,
 ) -> RunResult:
-    """Run ``spec`` end to end and return the stored run.
+    """Run ``spec`` end to end and return the stored run (a new run gets ``tags``, KEY -> VALUE, in its run.json).
 
     ``executor`` is ``local`` (in-process or a process pool of ``workers``) or ``dask``
     (the cluster at ``scheduler``, or a LocalCluster of ``workers`` processes without one).
@@ -240,7 +241,7 @@ def run_experiment(
     if resume is None:
         ctx = prepare(spec)
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
-                           len(plan(ctx)))
+                           len(plan(ctx)), tags=tags)
         run.update_info(dataset_hash=ctx.dataset_hash,  # units: {column: unit} of the loaded columns, for labels
                         units={k: u for p in ctx.problems.values() for k, u in p.train.raw.units.items() if u})
         return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
