@@ -51,9 +51,16 @@ def calibrate() -> None:
 @calibrate.command("pm")
 @click.option("--fat", "fat_ref", default="egt-hybrid", show_default=True, metavar="FILE|egt-hybrid|simulator",
               help="FAT points: 'egt-hybrid' (that paper's Table 4, shipped; docs/papers.md), 'simulator' (a shop "
-                   "test of the synthetic engine) or a CSV file with the fixture's columns.")
+                   "test of the synthetic engine) or a CSV file with the fixture's columns; for an FMU dataset "
+                   "a CSV of operating points (its input and output columns).")
 @click.option("--dataset", default="marine-diesel", show_default=True,
-              help="Dataset whose physical model is calibrated.")
+              help="Dataset whose physical model is calibrated (marine-diesel, or a dataset whose import spec "
+                   "names an FMU: its .toml spec or .parquet file).")
+@click.option("--on", "on", type=click.Choice(["fat", "train"]), default="fat", show_default=True,
+              help="FMU datasets: fit to the --fat points, or to the dataset's training rows (its published "
+                   "split's training part, else every segment).")
+@click.option("--settle", type=click.FloatRange(min=0.0, min_open=True), default=600.0, show_default=True,
+              help="FMU datasets: seconds each FAT point's inputs are held before the FMU is compared with it.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Random seed of the synthetic engine tested with --fat simulator.")
 @click.option("--pressure", type=click.Choice(["absolute", "gauge"]), default="absolute", show_default=True,
@@ -62,12 +69,17 @@ def calibrate() -> None:
               help="Largest acceptable |PE| in percent.")
 @click.option("--output", "-o", type=click.Path(dir_okay=False), default=None,
               help="Write the calibrated parameters (and the worst |PE|) to this JSON file.")
-def calibrate_pm(fat_ref: str, dataset: str, seed: int, pressure: str, tolerance: float, output) -> None:
+def calibrate_pm(fat_ref: str, dataset: str, on: str, settle: float, seed: int, pressure: str,
+                 tolerance: float, output) -> None:
     """Fit the physical model's parameters to FAT points by weighted least squares.
 
     Prints, per quantity and speed, the FAT value, our PM's value and percentage error
     PE = (PM - FAT) / FAT, and the paper's PM value and PE where the table has them,
     then the worst |PE|.
+
+    For a dataset whose import spec names an FMU ([physical_model], docs/data.md), fits the
+    FMU parameters listed in its calibrate key to FAT points (--fat FILE) or to the training
+    rows (--on train) and prints the parameters before and after and the weighted residual.
 
     Exit status: 0 when every |PE| is within --tolerance (10 % by default, the egt-hybrid
     paper's criterion), 1 when any |PE| exceeds it, 2 on bad input (a missing or malformed
@@ -78,8 +90,7 @@ def calibrate_pm(fat_ref: str, dataset: str, seed: int, pressure: str, tolerance
 
     check_output(output)
     if dataset not in FAT_DATASETS:
-        raise DataError(f"dataset {dataset!r} has no FAT-calibrated physical model; FAT calibration is available "
-                        f"for: {', '.join(FAT_DATASETS)}")
+        return calibrate_fmu(dataset, fat_ref, on, settle, output)
     if fat_ref == "seed":                   # the old name of the paper's table: a seed is a random seed
         click.echo(deprecated("--fat seed", "--fat egt-hybrid"), err=True)
         fat_ref = "egt-hybrid"
@@ -100,3 +111,24 @@ def calibrate_pm(fat_ref: str, dataset: str, seed: int, pressure: str, tolerance
         emit(json.dumps(doc, indent=2), output)
     if worst > tolerance:
         raise SystemExit(1)
+
+
+def calibrate_fmu(dataset: str, fat_ref: str, on: str, settle: float, output) -> None:
+    """``calibrate pm`` for a dataset whose physical model is an FMU."""
+    from enginebench.datasets import fmu_calibrate
+
+    model, ds = fmu_calibrate.dataset_model(dataset, FAT_DATASETS)
+    if on == "train":
+        segments, what = fmu_calibrate.dataset_segments(ds, model)
+        fit, source = fmu_calibrate.calibrate_to_rows(model, segments), f"training rows: {what}"
+    else:
+        if fat_ref in ("egt-hybrid", "simulator", "seed"):  # the marine engine's tables
+            raise DataError(f"dataset {dataset!r}: give --fat FILE (a CSV of operating points) or --on train")
+        (fit, table), source = fmu_calibrate.calibrate_to_fat(model, fat_ref, settle), f"FAT points {fat_ref}"
+        click.echo(table.to_string(index=False, float_format=lambda x: f"{x:.6g}"))
+    click.echo(f"FMU calibration ({dataset}, {model.path.name}) on {source}:")
+    click.echo(fmu_calibrate.format_fit(fit), nl=False)
+    if output:
+        doc = {"dataset": dataset, "fmu": str(model.path), "on": source, "params": fit.after,
+               "rms_before": fit.rms_before, "rms_after": fit.rms_after}
+        emit(json.dumps(doc, indent=2), output)

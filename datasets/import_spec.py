@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from enginebench.datasets.dataset import SEGMENT, TIME
+from enginebench.datasets.fmu_spec import parse_physical_model
 from enginebench.datasets.schema import Column, Schema
 from enginebench.datasets.validate import DATETIME, TIME_UNITS
 from enginebench.declare import (Declaration, Invalid, anything, choice, did_you_mean, flag, number, positive, table,
@@ -114,6 +115,7 @@ class ImportSpec:
     records: tuple[RecordSpec, ...] = field(default=())
     rate_column: str | None = None
     period_column: str | None = None
+    physical_model: Mapping[str, Any] | None = None  # the [physical_model] FMU table (datasets/fmu_spec.py)
 
     def delimiter_for(self, file: Path) -> str:
         """The declared delimiter, else a tab for .tsv files and a comma otherwise."""
@@ -357,4 +359,5 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         records=records,
         rate_column=rate_column,
         period_column=period_column,
+        physical_model=parse_physical_model(doc.get("physical_model"), path),
     )

@@ -24,6 +24,10 @@ relative to the spec file. Every key::
     drop_short_segments = false        # ... or, when true, dropped with a warning
     dt_tolerance = 1e-6                # optional: relative tolerance on steps being multiples of dt (and on
                                        # a written rate or period)
+    [physical_model]                   # optional: an FMU as the dataset's physical model (datasets/fmu_spec.py):
+    fmu = "engine.fmu"                 # fmu, inputs = {column = "fmu variable"}, outputs = {target = "fmu variable"},
+    inputs = { u = "u" }               # parameters = {name = value}, calibrate = ["name"], weights, fmi_type,
+    outputs = { y = "y" }              # tolerance; the FMU's path and sha256 are kept in meta["fmu"]
 
     [columns]                          # required: the spec's column names, roles and units
     u = { role = "input", unit = "V" }
@@ -448,6 +452,11 @@ def import_table(spec_path: str | Path) -> Dataset:
 
 def import_spec(spec: ImportSpec) -> Dataset:
     """Import the records of a checked spec: one segment per record, notes in ``meta["notes"]``."""
+    fmu_meta = None
+    if spec.physical_model is not None:  # the FMU is checked before the data are read
+        from enginebench.datasets.fmu import import_meta
+
+        fmu_meta = import_meta(spec.physical_model, spec.schema.names(), spec.dt, spec.path)
     units = {c.name: c.unit for c in spec.schema.columns}
     unit_from = {c.name: "the spec" for c in spec.schema.columns if c.unit}
     seen: dict[str, Path] = {}
@@ -538,4 +547,6 @@ def import_spec(spec: ImportSpec) -> Dataset:
         meta["dropped_segments"] = len(dropped)
     if notes:
         meta["notes"] = notes
+    if fmu_meta is not None:
+        meta["physical_model"], meta["fmu"] = "fmu", fmu_meta
     return Dataset(name=spec.name, frame=frame, schema=schema, dt=spec.dt, meta=meta)
