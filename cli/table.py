@@ -80,14 +80,15 @@ def job_note_lines(run, width: int = 200) -> list[str]:
     Same wording as at the end of ``run`` (``results.notes.note_lines``); a reason longer
     than ``width`` characters is cut (``runs show`` prints it whole).
     """
-    from enginebench.results.notes import note_lines
+    from enginebench.results.notes import edge_note_lines, note_lines
 
     def short(text: str) -> str:
         text = " ".join(text.split())
         return text if len(text) <= width else text[: width - 3] + "..."
 
     notes = run.job_notes()
-    return note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
+    return (note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
+            + edge_note_lines(run.job_metas().values()))
 
 
 def paired_lines(tests, metric: str) -> str:

@@ -115,12 +115,20 @@ def record_blocks(sizes: np.ndarray, folds: int, init_samples: int = 0
     return out
 
 
-def grid_edges(space: dict[str, np.ndarray], chosen: dict[str, Any]) -> dict[str, dict[str, Any]]:
+WARNED_EDGES = {"both": ("lower", "upper"), "low": ("lower",), "high": ("upper",), "none": ()}
+"""A method's edge rule (``Method.grid_edges``: "both", "low", "high", "none") -> the grid edges worth a warning."""
+
+
+def grid_positions(space: dict[str, np.ndarray], chosen: dict[str, Any],
+                   rules: dict[str, str] | None = None) -> dict[str, dict[str, Any]]:
     """Where each selected value sits in its grid, for every numeric grid of 3 or more distinct finite values.
 
-    ``{name: {"edge": "lower" | "upper" | None, "value": selected, "lower": grid min, "upper": grid max}}``;
-    other parameters (short, non-numeric or non-finite grids) are left out: an edge of theirs says nothing.
+    ``{name: {"edge": "lower" | "upper" | None, "value": selected, "lower": grid min, "upper": grid max,
+    "warn": bool}}``; ``warn`` is True at an edge that ``rules`` (hyperparameter -> "both", "low",
+    "high" or "none"; "both" for one not listed) says is worth a warning. Other parameters (short,
+    non-numeric or non-finite grids) are left out: an edge of theirs says nothing.
     """
+    rules = rules or {}
     out: dict[str, dict[str, Any]] = {}
     for name, values in space.items():
         try:
@@ -131,15 +139,25 @@ def grid_edges(space: dict[str, np.ndarray], chosen: dict[str, Any]) -> dict[str
         if len(grid) < 3 or not np.isfinite(grid).all():
             continue
         edge = "lower" if value == grid[0] else "upper" if value == grid[-1] else None
-        out[name] = {"edge": edge, "value": value, "lower": float(grid[0]), "upper": float(grid[-1])}
+        out[name] = {"edge": edge, "value": value, "lower": float(grid[0]), "upper": float(grid[-1]),
+                     "warn": edge in WARNED_EDGES.get(rules.get(name, "both"), ("lower", "upper"))}
     return out
 
 
-def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, Any]) -> list[str]:
-    """A warning for each selected value that sits at the edge of a numeric grid of 3 or more values."""
+def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, Any],
+                  rules: dict[str, str] | None = None) -> list[str]:
+    """A warning for each selected value at an edge of a numeric grid of 3 or more values that ``rules`` warns about."""
     return [f"{method}: {name} = {e['value']:g} selected at the {e['edge']} edge of its grid "
             f"[{e['lower']:g} .. {e['upper']:g}]; the optimum may lie beyond it: widen the grid"
-            for name, e in grid_edges(space, chosen).items() if e["edge"]]
+            for name, e in grid_positions(space, chosen, rules).items() if e["warn"]]
+
+
+def edge_rules(method: Method) -> tuple[dict[str, str], dict[str, str]]:
+    """(hyperparameter -> edge rule, hyperparameter -> the option that sets its grid) from the method's declared options."""
+    declaration = method.option_declaration()
+    rules = method.grid_edges()
+    options = {param: f.name for f in declaration.fields for param in f.searches}
+    return rules, options
 
 
 @dataclass(frozen=True)
@@ -182,9 +200,10 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     own validation part (the turboshaft seed's protocol). ``init_samples`` is the
     experiment's state initialisation window, given to validation blocks cut from
     training records (simulation-mode k-fold). The record lists the selected values at
-    the edge of their grid under ``warnings``, where each searched numeric parameter sits
-    in its grid under ``grid_edges`` (``grid_edges``, plus ``option``: the method's
-    ``<name>_grid`` option when it has one), and holds the scores of every grid point on
+    the edge of their grid under ``warnings`` (as the method's ``grid_edges`` rules
+    allow), where each searched numeric parameter sits in its grid under ``grid_edges``
+    (``grid_positions``, plus ``option``: the declared option that sets that grid, or
+    None), and holds the scores of every grid point on
     every resample or fold under ``table`` (a :class:`SelectionTable`; absent when
     nothing was scored: an empty or one-point grid, ``kind = "none"``).
     """
@@ -216,12 +235,13 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
         raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
     best = int(np.argmin(mean))
     space = method.search_space(train)
-    edges = grid_edges(space, grid[best])
+    rules, options = edge_rules(method)
+    edges = grid_positions(space, grid[best], rules)
     for name, found in edges.items():
-        found["option"] = f"{name}_grid" if f"{name}_grid" in getattr(method, "options", {}) else None
+        found["option"] = options.get(name)
     record = {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts),
               "grid_edges": edges, "table": SelectionTable(grid, scores, selection.criterion, best)}
-    warnings = edge_warnings(method.name, space, grid[best])
+    warnings = edge_warnings(method.name, space, grid[best], rules)
     if warnings:
         record["warnings"] = warnings
     return grid[best], record

@@ -1,6 +1,9 @@
-"""What a run's jobs said, as lines for people: each failure reason and warning once, with its count."""
+"""What a run's jobs said, as lines for people: each failure reason and warning once, with its count;
+how often each searched hyperparameter was picked at an edge of its grid."""
 
 from __future__ import annotations
+
+from typing import Any, Iterable
 
 
 def note_lines(notes: dict[str, dict[tuple[str, str], int]]) -> list[str]:
@@ -10,4 +13,44 @@ def note_lines(notes: dict[str, dict[tuple[str, str], int]]) -> list[str]:
 
     lines = [f"failed ({jobs(n)}): {method}: {reason}" for (method, reason), n in notes.get("failed", {}).items()]
     lines += [f"warning ({jobs(n)}): {text}" for (_method, text), n in notes.get("warnings", {}).items()]
+    return lines
+
+
+def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
+    """Run-level grid-edge notes from the jobs' metadata (``Run.job_metas().values()``), one line per
+    (method, hyperparameter, edge) picked at least once, e.g.
+    ``grid edge: krls: gamma at the upper edge of its grid (10000) in 8 of 8 repetitions: widen gamma_grid``.
+
+    Counts the jobs whose selection record (``search.grid_edges``) places the selected value at an
+    edge worth a warning (the method's edge rules) among the jobs that searched that
+    hyperparameter; "repetitions" when those jobs share one target, window and split, else "jobs".
+    Jobs of runs made before the record was stored count for nothing.
+    """
+    searched: dict[tuple[str, str], list[tuple[Any, Any, Any]]] = {}
+    picks: dict[tuple[str, str, str], list[float]] = {}
+    options: dict[tuple[str, str], str] = {}
+    for meta in metas:
+        search = meta.get("search")
+        edges = search.get("grid_edges") if isinstance(search, dict) else None
+        if not isinstance(edges, dict):
+            continue
+        method = str(meta.get("method", "?"))
+        for param, where in edges.items():
+            if not isinstance(where, dict):
+                continue
+            searched.setdefault((method, param), []).append((meta.get("target"), meta.get("window"), meta.get("split")))
+            if where.get("option"):
+                options[(method, param)] = str(where["option"])
+            side = where.get("edge")
+            if side in ("lower", "upper") and where.get("warn", True):
+                picks.setdefault((method, param, side), []).append(float(where[side]))
+    lines = []
+    for (method, param, side), bounds in sorted(picks.items()):
+        coords = searched[(method, param)]
+        unit = "repetitions" if len(set(coords)) == 1 else "jobs"
+        lo, hi = min(bounds), max(bounds)
+        at = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}"
+        option = options.get((method, param))
+        lines.append(f"grid edge: {method}: {param} at the {side} edge of its grid ({at}) in {len(bounds)} of "
+                     f"{len(coords)} {unit}: widen {option or 'its grid'}")
     return lines
