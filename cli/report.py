@@ -90,7 +90,7 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
     """
     import tempfile
 
-    from enginebench.results.mlflow_export import export_run, import_mlflow
+    from enginebench.results.mlflow_export import check_destination, export_run, import_mlflow
     from enginebench.results.store import RunStore
 
     import_mlflow()  # a missing package is reported before any work
@@ -98,6 +98,8 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
     run = RunStore(store).get(run_ref)
     if with_report and figures:
         run.check_plugins("re-fitted for the report's figures (--no-figures logs the tables only)")
+    if with_report:  # a store that would refuse the run does so before the report is built
+        check_destination(run, tracking_uri, experiment=experiment, replace=replace)
     with tempfile.TemporaryDirectory(prefix="enginebench-report-") as tmp:
         report_dir = None
         if with_report:

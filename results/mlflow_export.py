@@ -430,6 +430,50 @@ def _log(client, run_id: str, params: dict[str, str], metrics: dict[str, float],
     return len(values)
 
 
+def _destination(client, uri: str, name: str, run_id: str, replace: bool, *,
+                 create: bool) -> tuple[str | None, list]:
+    """(the experiment's id, the runs of earlier exports of ``run_id`` in it), refused if any unless ``replace``.
+
+    ``create``: create a missing experiment (else its id is None).
+    """
+    found = client.get_experiment_by_name(name)
+    if found is not None and found.lifecycle_stage != "active":
+        raise ExportError(f"MLflow experiment {name!r} at {uri} is deleted; restore it (mlflow experiments restore "
+                          f"--experiment-id {found.experiment_id}) or choose another with --experiment")
+    if found is None:
+        return (client.create_experiment(name) if create else None), []
+    earlier = _search_all(client, found.experiment_id, f"tags.`enginebench.run_id` = {_quoted(run_id)}")
+    if earlier and not replace:
+        from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
+
+        parents = [r.info.run_id for r in earlier if MLFLOW_PARENT_RUN_ID not in r.data.tags]
+        raise ExportError(f"run {run_id} is already exported to MLflow experiment {name!r} at {uri} (parent run "
+                          f"{', '.join(parents) or earlier[0].info.run_id}); pass --replace to log it again and delete "
+                          "that export")
+    return found.experiment_id, earlier
+
+
+def check_destination(run: Run, tracking_uri: str | Path, *, experiment: str | None = None,
+                      replace: bool = False) -> None:
+    """Refuse now what ``export_run`` would refuse about the store, creating nothing.
+
+    A URI MLflow cannot use, an unreachable server, a deleted experiment, or an earlier
+    export of ``run`` without ``replace`` (the CLI asks before it builds a report).
+    """
+    uri = resolve_uri(tracking_uri)
+    if uri.startswith("file:"):
+        os.environ.setdefault("MLFLOW_ALLOW_FILE_STORE", "true")
+    _, MlflowClient = import_mlflow()
+    from mlflow.exceptions import MlflowException
+
+    client = _client(uri, MlflowClient)
+    name = experiment or str(run.config().get("name") or run.info().get("name") or run.id)
+    try:
+        _destination(client, uri, name, run.id, replace, create=False)
+    except (MlflowException, OSError) as exc:
+        raise ExportError(f"MLflow ({uri}): {_first_line(exc)}") from None
+
+
 def export_run(
     run: Run,
     tracking_uri: str | Path,
@@ -458,17 +502,8 @@ def export_run(
     client = _client(uri, MlflowClient)
     created: list[str] = []
     try:
-        found = client.get_experiment_by_name(name)
-        if found is not None and found.lifecycle_stage != "active":
-            raise ExportError(f"MLflow experiment {name!r} at {uri} is deleted; restore it (mlflow experiments restore "
-                              f"--experiment-id {found.experiment_id}) or choose another with --experiment")
-        experiment_id = found.experiment_id if found is not None else client.create_experiment(name)
-        earlier = _search_all(client, experiment_id, f"tags.`enginebench.run_id` = {_quoted(run.id)}")
+        experiment_id, earlier = _destination(client, uri, name, run.id, replace, create=True)
         earlier_parents = [r.info.run_id for r in earlier if MLFLOW_PARENT_RUN_ID not in r.data.tags]
-        if earlier and not replace:
-            which = ", ".join(earlier_parents) or earlier[0].info.run_id
-            raise ExportError(f"run {run.id} is already exported to MLflow experiment {name!r} at {uri} (parent run "
-                              f"{which}); pass --replace to log it again and delete that export")
         now = int(time.time() * 1000)
         parent = client.create_run(experiment_id, run_name=layout.run_name, tags=layout.tags).info.run_id
         created.append(parent)
@@ -485,8 +520,6 @@ def export_run(
             client.set_terminated(cid, child.status)
         artifacts = _log_artifacts(client, parent, run, layout, report_dir)
         client.set_terminated(parent, layout.status)
-        for old in earlier:  # only once the new export is complete
-            client.delete_run(old.info.run_id)
     except (MlflowException, OSError, ExportError) as exc:
         for run_id in reversed(created):  # leave no half export behind (best effort: the store may be gone)
             try:
@@ -496,6 +529,13 @@ def export_run(
         if isinstance(exc, ExportError):
             raise
         raise ExportError(f"MLflow ({uri}): {_first_line(exc)}") from None
+    try:
+        for old in earlier:  # only once the new export is complete
+            client.delete_run(old.info.run_id)
+    except (MlflowException, OSError) as exc:
+        raise ExportError(f"MLflow ({uri}): run {run.id} was exported as parent run {parent}, but deleting the "
+                          f"earlier export {', '.join(earlier_parents)} failed ({_first_line(exc)}); delete it in "
+                          "MLflow") from None
     return ExportResult(tracking_uri=uri, experiment_id=experiment_id, mlflow_run_id=parent, child_run_ids=children,
                         params=layout.params, n_params=n_params, n_metric_values=n_metrics, artifacts=artifacts,
                         replaced=earlier_parents)

@@ -241,7 +241,7 @@ def test_family_falls_back_to_what_the_run_stored(single_run):
     assert stored == {"naive-mean": "baseline", "krls": "data-driven", "mlflow-test-broken": "hybrid"}
 
 
-def test_reexport_is_refused_then_replaced_with_the_report(run, tmp_path, file_store_allowed):
+def test_reexport_is_refused_then_replaced_with_the_report(run, tmp_path, file_store_allowed, monkeypatch):
     store = tmp_path / "mlruns"
     uri = store.resolve().as_uri()
     args = ["export", run.id, "--store", str(run.path.parent), "--mlflow", str(store), "--experiment", "mine"]
@@ -253,11 +253,16 @@ def test_reexport_is_refused_then_replaced_with_the_report(run, tmp_path, file_s
     exp = client.get_experiment_by_name("mine")
     (old,), _ = _layout(client, exp.experiment_id)
 
+    refused = [f"error: run {run.id} is already exported to MLflow experiment 'mine' at {uri} (parent run "
+               f"{old.info.run_id}); pass --replace to log it again and delete that export"]
     again = CliRunner().invoke(cli, args)
-    assert again.exit_code == 2
-    assert again.output.strip().splitlines() == [
-        f"error: run {run.id} is already exported to MLflow experiment 'mine' at {uri} (parent run {old.info.run_id}); "
-        "pass --replace to log it again and delete that export"]
+    assert again.exit_code == 2 and again.output.strip().splitlines() == refused
+    with monkeypatch.context() as m:  # with --report: refused before the report is built
+        import enginebench.experiments.report as report_module
+
+        m.setattr(report_module, "write_report", lambda *a, **k: pytest.fail("report built before the refusal"))
+        again = CliRunner().invoke(cli, args + ["--report", "--no-figures"])
+    assert again.exit_code == 2 and again.output.strip().splitlines() == refused
     assert len(client.search_runs([exp.experiment_id])) == 3  # nothing added
 
     res = CliRunner().invoke(cli, args + ["--replace", "--report", "--no-figures"])
