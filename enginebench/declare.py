@@ -327,19 +327,23 @@ class Declaration:
 
     def validate(self, values: Mapping[str, Any], where: str, error: Callable[[str], Exception],
                  name: str = "option {key}", fill: bool = True, unknown_noun: str = "option(s)",
-                 known_label: str = "known") -> dict[str, Any]:
+                 known_label: str = "known", strict: bool = True) -> dict[str, Any]:
         """The checked values (defaults filled in when ``fill``); ``error(line)`` raised for the first problem.
 
         ``where`` starts each line ("method 'krls'", a file path; "" for none) and ``name``
-        names a key in it ("option {key}", "[split] {key}", "key {key!r}").
+        names a key in it ("option {key}", "[split] {key}", "key {key!r}"). Undeclared keys
+        are refused unless ``strict`` is false (then they pass through unchecked).
         """
         prefix = f"{where}: " if where else ""
-        problem = self.unknown(list(values), unknown_noun, known_label)
+        problem = self.unknown(list(values), unknown_noun, known_label) if strict else None
         if problem:
             raise error(prefix + problem)
         out = self.defaults() if fill else {}
         for key, value in values.items():
-            f = self.by_name[key]
+            f = self.by_name.get(key)
+            if f is None:
+                out[key] = value
+                continue
             try:
                 out[key] = f.validate(value)
             except Invalid as bad:

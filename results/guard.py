@@ -67,6 +67,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from enginebench.declare import Declaration, Invalid, anything, flag, listing, number, table, text, whole
 from enginebench.errors import DataError
 from enginebench.results import reproduce
 from enginebench.results.output import write_output
@@ -210,13 +211,52 @@ def _bad(path: Path, where: str, what: str) -> BaselineError:
     return BaselineError(f"baseline {path}: {where} {what}; re-create it with 'enginebench publish RUN -o {path}'")
 
 
-def _number(path: Path, where: str, key: str, value: Any, *, nullable: bool = False) -> float:
-    if value is None and nullable:
-        return float("nan")
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        kind = "a finite number or null" if nullable else "a finite number"
-        raise _bad(path, where, f"key {key!r} must be {kind}, got {value!r}")
-    return float(value)
+def _string(value: Any) -> str:
+    if not isinstance(value, str):
+        raise Invalid("needs {name} as a string, got {value}")
+    return value
+
+
+def _rtol(value: Any) -> float:
+    return max(float(value), ROUNDING_RTOL)
+
+
+NUMBER = "{name} must be a finite number, got {value}"
+NUMBER_OR_NULL = "{name} must be a finite number or null, got {value}"
+TEXT = "{name} must be a non-empty string, got {value}"
+TOP = Declaration(
+    anything("format", FORMAT, "fixed marker"),
+    anything("version", VERSION, "format version"),
+    anything("experiment", None, "the experiment's name", check=_string, type_label="str"),
+    anything("config_hash", None, "ExperimentSpec.config_hash() of the run", check=_string, type_label="str"),
+    anything("interval", None, "t (Student-t) or bootstrap (percentile)", check=_string, type_label="str"),
+    table("reproducibility", None, "how the entries' rtol were measured", nullable=True,
+          message="{name} must be an object (how the tolerances were measured), got {value}"),
+    listing("entries", None, "one published value per (target, mode, window, method, split, metric)",
+            message="{name} must be a non-empty list of published values"),
+)
+"""A baseline's checked top-level keys (others, such as ``source``, are free)."""
+ENTRY_NAMES = Declaration(*(text(k, None, f"the entry's {k}", message=TEXT) for k in _STR_KEYS))
+ENTRY = Declaration(
+    number("window", None, "window length", unit="s", message=NUMBER),
+    number("mean", None, "the published mean", message=NUMBER),
+    number("ci_low", None, "lower end of the interval; null where none", nullable=True, message=NUMBER_OR_NULL),
+    number("ci_high", None, "upper end of the interval; null where none", nullable=True, message=NUMBER_OR_NULL),
+    whole("n_repeats", None, "repetitions behind the mean", low=1,
+          message="{name} must be a positive integer, got {value}"),
+    whole("n_failed", 0, "failed repetitions", low=0, message="{name} must be a non-negative integer, got {value}"),
+    number("rtol", None, "relative reproduction tolerance of the value (default ROUNDING_RTOL)", low=0, high=1,
+           high_open=True, check=_rtol, message="{name} must be a number in [0, 1) (the value's relative "
+                                                "reproduction tolerance), got {value}"),
+    flag("lower_is_better", None, "direction of the metric"),
+)
+"""A baseline entry's keys besides the names (``_STR_KEYS``)."""
+
+
+def _checked(path: Path, where: str, declared: Declaration, values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` (every declared key; an absent one takes its default, None where required) checked."""
+    full = {k: values.get(k, declared[k].default) for k in declared.names()}
+    return declared.validate(full, "", lambda line: _bad(path, where, line), name="key {key!r}")
 
 
 def load_baseline(path: str | Path) -> dict[str, Any]:
@@ -232,44 +272,23 @@ def load_baseline(path: str | Path) -> dict[str, Any]:
         raise _bad(path, "the top level", f"is not an enginebench baseline (it needs \"format\": \"{FORMAT}\")")
     if doc.get("version") != VERSION:
         raise _bad(path, "key 'version'", f"is {doc.get('version')!r}; this enginebench reads version {VERSION}")
-    for key in ("experiment", "config_hash", "interval"):
-        if not isinstance(doc.get(key), str):
-            raise _bad(path, "the top level", f"needs key {key!r} as a string, got {doc.get(key)!r}")
-    if "reproducibility" in doc and not isinstance(doc["reproducibility"], dict):
-        raise _bad(path, "key 'reproducibility'", f"must be an object (how the tolerances were measured), got "
-                                                  f"{doc['reproducibility']!r}")
-    entries = doc.get("entries")
-    if not isinstance(entries, list) or not entries:
-        raise _bad(path, "key 'entries'", "must be a non-empty list of published values")
+    top = {k: doc.get(k) for k in ("experiment", "config_hash", "interval", "entries")}
+    if "reproducibility" in doc:
+        top["reproducibility"] = doc["reproducibility"]
+    TOP.validate(top, "", lambda line: BaselineError(f"baseline {path}: {line}; re-create it with 'enginebench "
+                                                     f"publish RUN -o {path}'"), name="key {key!r}")
     clean, seen = [], set()
-    for i, e in enumerate(entries):
+    for i, e in enumerate(doc["entries"]):
         where = f"entry {i}"
         if not isinstance(e, dict):
             raise _bad(path, where, f"must be an object, got {e!r}")
-        for key in _STR_KEYS:
-            if not isinstance(e.get(key), str) or not e.get(key):
-                raise _bad(path, where, f"key {key!r} must be a non-empty string, got {e.get(key)!r}")
+        row = _checked(path, where, ENTRY_NAMES, e)
         where = f"entry {i} ({e['method']} {e['metric']}, {e['target']}, {e['split']})"
-        row = {k: e[k] for k in _STR_KEYS}
-        row["window"] = _number(path, where, "window", e.get("window"))
-        row["mean"] = _number(path, where, "mean", e.get("mean"))
-        row["ci_low"] = _number(path, where, "ci_low", e.get("ci_low"), nullable=True)
-        row["ci_high"] = _number(path, where, "ci_high", e.get("ci_high"), nullable=True)
+        rest = _checked(path, where, ENTRY, {**e, "rtol": e.get("rtol", ROUNDING_RTOL)})
+        row.update(rest, **{k: float("nan") if rest[k] is None else float(rest[k])
+                            for k in ("window", "mean", "ci_low", "ci_high")})
         if row["ci_low"] > row["mean"] or row["ci_high"] < row["mean"]:
             raise _bad(path, where, f"has an interval [{e['ci_low']}, {e['ci_high']}] that does not contain its mean {e['mean']}")
-        for key, default in (("n_repeats", None), ("n_failed", 0)):
-            value = e.get(key, default)
-            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "n_repeats" else 0):
-                raise _bad(path, where, f"key {key!r} must be a {'positive' if key == 'n_repeats' else 'non-negative'} integer, got {value!r}")
-            row[key] = value
-        rtol = e.get("rtol", ROUNDING_RTOL)
-        if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not math.isfinite(rtol) or not 0 <= rtol < 1:
-            raise _bad(path, where, f"key 'rtol' must be a number in [0, 1) (the value's relative reproduction "
-                                    f"tolerance), got {rtol!r}")
-        row["rtol"] = max(float(rtol), ROUNDING_RTOL)
-        if not isinstance(e.get("lower_is_better"), bool):
-            raise _bad(path, where, f"key 'lower_is_better' must be true or false, got {e.get('lower_is_better')!r}")
-        row["lower_is_better"] = e["lower_is_better"]
         key = tuple(row[k] for k in JOIN)
         if key in seen:
             raise _bad(path, where, "repeats an earlier entry with the same target, mode, window, method, split and metric")
