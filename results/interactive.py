@@ -250,7 +250,7 @@ def validation_figure(selection: pd.DataFrame, *, title: str = ""):
 
     ``selection`` has ``Run.selection_table()``'s columns (``param:<name>``..., repetition,
     point, resample, score, criterion, chosen). The x axis is the parameter with the most
-    values (log scale when positive over more than two decades); each combination of the
+    values (log scale when positive over at least a decade); each combination of the
     others is one line of the mean score over repetitions and resamples; each
     repetition's chosen point is a star. None when the search had a single point.
     """
@@ -279,7 +279,7 @@ def validation_figure(selection: pd.DataFrame, *, title: str = ""):
                                  customdata=chosen["repetition"],
                                  hovertemplate="repetition %{customdata}: %{y:.4g}<extra>chosen</extra>"))
     xs = pd.to_numeric(selection[xcol], errors="coerce").to_numpy(dtype=float)
-    log = bool(np.isfinite(xs).all() and (xs > 0).all() and xs.max() / xs.min() > 100)
+    log = bool(np.isfinite(xs).all() and (xs > 0).all() and xs.max() / xs.min() >= 10)
     criterion = str(selection["criterion"].iloc[0]) if "criterion" in selection else "score"
     fig.update_layout(title=_title(title), height=400, margin={"l": 70, "r": 20, "t": 60, "b": 50},
                       xaxis={"title": xcol[len(PARAM_PREFIX):], "type": "log" if log else "linear"},

@@ -177,6 +177,18 @@ def test_page_is_one_self_contained_file_with_plotly_inlined_once(static_pages):
     assert page.figures[-1].startswith("krls: y, window 0 s, split published: validation score")
 
 
+
+def test_validation_curve_stars_the_hyperparameters_each_repetition_selected(static_pages, static_run):
+    _, (_, page, _) = static_pages
+    curve = _figures(page.path.read_text())[-1]
+    stars = curve["data"][-1]
+    assert stars["name"] == "chosen (per repetition)" and curve["layout"]["xaxis"]["title"]["text"] == "gamma"
+    reps = _values(stars["customdata"]).astype(int)
+    selected = [static_run.job_meta(f"y__w0__published__krls__r{r:03d}")["params"]["gamma"] for r in reps]
+    np.testing.assert_allclose(_values(stars["x"]), selected)
+    assert sorted(reps) == [0, 1] and curve["layout"]["xaxis"]["type"] == "log"  # gamma 0.01 ... 1
+
+
 def test_time_series_and_scatter_carry_the_refitted_predictions(static_pages, static_run):
     _, (static, page, _) = static_pages
     figs = _figures(page.path.read_text())
@@ -285,6 +297,9 @@ def test_validation_figure_draws_the_grid_mean_and_the_chosen_points():
     assert stars["marker"]["symbol"] == "star" and list(_values(stars["customdata"])) == [0, 1]
     assert fig["layout"]["xaxis"]["type"] == "log" and fig["layout"]["yaxis"]["title"]["text"] == "validation mse"
     assert ia.validation_figure(pd.DataFrame(rows).assign(**{"param:gamma": 1.0, "param:lambda": 1.0})) is None
+    narrow = pd.DataFrame(rows).assign(**{"param:gamma": lambda f: f["param:gamma"].map({0.01: 1.0, 1.0: 2.0,
+                                                                                          100.0: 9.0})})
+    assert ia.figure_json(ia.validation_figure(narrow))["layout"]["xaxis"]["type"] == "linear"  # under a decade
 
 
 def test_sortable_table_escapes_and_refuses_ragged_rows():
