@@ -18,16 +18,18 @@ and parameter set through ``methods.pm.SimulationCache``. fmpy is an optional ex
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import hashlib
 import shutil
+import sys
 import tempfile
 import threading
 import weakref
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -178,6 +180,25 @@ def import_meta(config: Mapping[str, Any], columns: Sequence[str], dt: float,
 
 
 # -- running it ----------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _quiet_callbacks(messages: list[str]) -> Iterator[None]:
+    """Errors raised inside fmpy's solver callbacks (model exchange) are kept as messages instead of printed.
+
+    ctypes cannot pass an exception out of a callback; Python would print its traceback
+    through ``sys.unraisablehook`` and the solver then fails on its own.
+    """
+    previous = sys.unraisablehook
+
+    def keep(unraisable: Any) -> None:
+        messages.append(_one_line(unraisable.exc_value) if unraisable.exc_value is not None else "solver callback failed")
+
+    sys.unraisablehook = keep
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
+
+
 class SimulationFailed(DataError):
     """The FMU failed during a simulation (the message names the segment and the time)."""
 
@@ -348,7 +369,8 @@ class FMUPhysicalModel:
             last[0] = time
             return True
 
-        with rt.lock:
+        callback_errors: list[str] = []
+        with rt.lock, _quiet_callbacks(callback_errors):
             try:
                 result = fmpy.simulate_fmu(
                     rt.unzipdir, model_description=fmu.description, fmu_instance=rt.ready(), fmi_type=fmu.fmi_type,
@@ -357,7 +379,8 @@ class FMUPhysicalModel:
                     step_finished=step_finished, validate=True)
             except Exception as exc:  # noqa: BLE001 - fmpy raises plain Exceptions; the FMU's log says more
                 rt.discard()
-                reason = rt.messages[-1] if rt.messages else _one_line(exc)
+                said = rt.messages or callback_errors  # the FMU's own log first
+                reason = said[-1] if said else _one_line(exc)
                 raise SimulationFailed(
                     f"{self.path}: the FMU failed after t = {span[0] + last[0]:g} s in the segment spanning "
                     f"t = {span[0]:g} .. {span[1]:g} s ({reason}); check the inputs there and the parameters"

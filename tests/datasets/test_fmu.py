@@ -27,6 +27,7 @@ from enginebench.datasets.importer import import_table  # noqa: E402
 from enginebench.errors import DataError, SpecError  # noqa: E402
 
 SOURCE = Path(__file__).parent.parent / "data" / "fmu" / "thermal_fmi2.c"
+SOURCE3 = SOURCE.with_name("thermal_fmi3.c")
 MODEL_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="2.0" modelName="thermal" guid="{GUID}" numberOfEventIndicators="0">
   <ModelExchange modelIdentifier="thermal"/>
@@ -44,6 +45,28 @@ MODEL_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
     <Outputs><Unknown index="1"/></Outputs>
     <Derivatives><Unknown index="2"/></Derivatives>
     <InitialUnknowns><Unknown index="1"/><Unknown index="2"/></InitialUnknowns>
+  </ModelStructure>
+</fmiModelDescription>
+"""
+MODEL_DESCRIPTION3 = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="thermal" instantiationToken="{8c4e810f-0000-4000-8000-000000000003}">
+  <ModelExchange modelIdentifier="thermal"/>
+  <CoSimulation modelIdentifier="thermal" canHandleVariableCommunicationStepSize="true"/>
+  <ModelVariables>
+    <Float64 name="time" valueReference="7" causality="independent" variability="continuous"/>
+    <Float64 name="T" valueReference="0" causality="output" variability="continuous" initial="calculated"/>
+    <Float64 name="der(T)" valueReference="1" causality="local" variability="continuous" initial="calculated" derivative="0"/>
+    <Float64 name="u" valueReference="2" causality="input" variability="continuous" start="0"/>
+    <Float64 name="K" valueReference="3" causality="parameter" variability="fixed" start="1"/>
+    <Float64 name="tau" valueReference="4" causality="parameter" variability="fixed" start="10" min="0.01" max="1000"/>
+    <Float64 name="T_amb" valueReference="5" causality="parameter" variability="fixed" start="20"/>
+    <Float64 name="fail_time" valueReference="6" causality="parameter" variability="fixed" start="-1"/>
+  </ModelVariables>
+  <ModelStructure>
+    <Output valueReference="0"/>
+    <ContinuousStateDerivative valueReference="1"/>
+    <InitialUnknown valueReference="0"/>
+    <InitialUnknown valueReference="1"/>
   </ModelStructure>
 </fmiModelDescription>
 """
@@ -65,15 +88,29 @@ def write_fmu(path: Path, library: Path | None, description: str = MODEL_DESCRIP
     return path
 
 
-@pytest.fixture(scope="session")
-def library(tmp_path_factory) -> Path:
+def compile_library(source: Path, out: Path) -> Path:
     cc = shutil.which("gcc") or shutil.which("cc")
     if cc is None or fmpy.platform != "linux64":
         pytest.skip("the test FMU is compiled with gcc/cc on linux64")
-    out = tmp_path_factory.mktemp("fmu-build") / f"thermal{fmpy.sharedLibraryExtension}"
     headers = Path(fmpy.__file__).parent / "c-code"
-    subprocess.run([cc, "-shared", "-fPIC", "-O2", f"-I{headers}", str(SOURCE), "-o", str(out), "-lm"], check=True)
+    subprocess.run([cc, "-shared", "-fPIC", "-O2", f"-I{headers}", str(source), "-o", str(out), "-lm"], check=True)
     return out
+
+
+@pytest.fixture(scope="session")
+def library(tmp_path_factory) -> Path:
+    return compile_library(SOURCE, tmp_path_factory.mktemp("fmu-build") / f"thermal{fmpy.sharedLibraryExtension}")
+
+
+@pytest.fixture(scope="session")
+def thermal_fmu3(tmp_path_factory) -> Path:
+    """The FMI 3.0 build: its binary lies under the platform tuple (x86_64-linux)."""
+    folder = tmp_path_factory.mktemp("fmu3")
+    lib = compile_library(SOURCE3, folder / f"thermal{fmpy.sharedLibraryExtension}")
+    with zipfile.ZipFile(folder / "thermal3.fmu", "w") as zf:
+        zf.writestr("modelDescription.xml", MODEL_DESCRIPTION3)
+        zf.write(lib, f"binaries/{fmpy.platform_tuple}/thermal{fmpy.sharedLibraryExtension}")
+    return folder / "thermal3.fmu"
 
 
 @pytest.fixture(scope="session")
@@ -123,9 +160,10 @@ PM_TABLE = """\
 
 
 # -- simulation ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("version", ["thermal_fmu", "thermal_fmu3"])
 @pytest.mark.parametrize("fmi_type, tol", [("CoSimulation", 1e-10), ("ModelExchange", 1e-5)])
-def test_simulation_reproduces_the_analytic_step_response(thermal_fmu, fmi_type, tol):
-    pm = FMUPhysicalModel(config(thermal_fmu, fmi_type=fmi_type))
+def test_simulation_reproduces_the_analytic_step_response(request, version, fmi_type, tol):
+    pm = FMUPhysicalModel(config(request.getfixturevalue(version), fmi_type=fmi_type))
     t = 1000.0 + np.arange(50, dtype=float)  # the segment's first stamp is the FMU's t = 0
     out = pm.simulate(pm.parameters, {"time": t, "power": np.full(50, 2.0)}, 1.0)
     np.testing.assert_allclose(out["temp"], analytic(t, 2.0, 5.0, 3.0), atol=tol * 10, rtol=tol)
@@ -150,9 +188,10 @@ def test_a_model_pickles_without_its_instance_and_simulates_in_the_copy(thermal_
 
 
 # -- calibration ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("version", ["thermal_fmu", "thermal_fmu3"])
 @pytest.mark.parametrize("fmi_type, rtol", [("CoSimulation", 1e-7), ("ModelExchange", 1e-3)])
-def test_calibrate_recovers_tau_and_K(thermal_fmu, tmp_path, fmi_type, rtol):
-    pm = FMUPhysicalModel(config(thermal_fmu, fmi_type=fmi_type, calibrate=["tau", "K"],
+def test_calibrate_recovers_tau_and_K(request, version, fmi_type, rtol):
+    pm = FMUPhysicalModel(config(request.getfixturevalue(version), fmi_type=fmi_type, calibrate=["tau", "K"],
                                  parameters={"tau": 10.0, "K": 1.0}))
     segs = []
     for u in (1.0, -2.0):
@@ -352,3 +391,24 @@ def test_cli_prints_an_error_line_not_a_traceback(tmp_path):
     assert res.exit_code == 2
     assert res.output.strip() == f"error: {(tmp_path / 'model.fmu').resolve()}: not an FMU (not a zip archive); " \
                                  "export the model as an FMU again"
+
+
+@pytest.mark.parametrize("version", ["thermal_fmu", "thermal_fmu3"])
+@pytest.mark.parametrize("fmi_type", ["CoSimulation", "ModelExchange"])
+def test_a_failing_fmu_names_the_time_and_the_segment_and_recovers(request, version, fmi_type):
+    from enginebench.datasets.fmu import SimulationFailed
+
+    path = request.getfixturevalue(version)
+    pm = FMUPhysicalModel(config(path, fmi_type=fmi_type))
+    t = 50.0 + np.arange(20, dtype=float)
+    seg = {"time": t, "power": np.ones(20)}
+    with pytest.raises(SimulationFailed) as err:
+        pm.simulate({**pm.parameters, "fail_time": 7.5}, seg, 1.0)
+    after = 57 if fmi_type == "CoSimulation" else None  # co-simulation fails in the step from 7 to 8 s
+    message = str(err.value)
+    assert message.startswith(f"{path}: the FMU failed after t = ")
+    assert message.endswith("in the segment spanning t = 50 .. 69 s (thermal: failure injected); check the inputs "
+                            "there and the parameters")
+    if after is not None:
+        assert f"after t = {after} s" in message
+    np.testing.assert_allclose(pm.simulate(pm.parameters, seg, 1.0)["temp"], analytic(t, 1.0, 5.0, 3.0), rtol=1e-5)
