@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import click
@@ -34,8 +35,6 @@ def runs_list(dataset, method, statuses, tags, since, fmt, width, store) -> None
     The term table fits the width: the least useful columns are trimmed, then dropped
     (never the id). A damaged run is listed with its reason.
     """
-    import json
-
     from enginebench.results import catalog
     from enginebench.results.store import RunStore
 
@@ -59,8 +58,6 @@ def runs_list(dataset, method, statuses, tags, since, fmt, width, store) -> None
 @store_option
 def runs_show(run_ref: str, store) -> None:
     """Config, environment, tags, plugin files, failure reasons and warnings, timings and a per-method summary of RUN."""
-    import json
-
     from enginebench.results.notes import note_lines
     from enginebench.results.store import RunStore
     from enginebench.results.tables import summarize
@@ -97,8 +94,7 @@ def runs_show(run_ref: str, store) -> None:
 
 
 def _edited(run, tags: dict[str, str]) -> None:
-    shown = ", ".join(f"{k}={v}" for k, v in tags.items()) or "none"
-    click.echo(f"run {run.id}: tags {shown}")
+    click.echo(f"run {run.id}: tags {', '.join(f'{k}={v}' for k, v in tags.items()) or 'none'}")
 
 
 @runs.command("tag")
@@ -110,7 +106,7 @@ def runs_tag(run_ref: str, pairs, store) -> None:
     from enginebench.results.catalog import edit_tags, parse_tags
     from enginebench.results.store import RunStore
 
-    tags = parse_tags(pairs, "runs tag")
+    tags = parse_tags(pairs, "runs tag")  # checked before the store is read
     run = RunStore(store).get(run_ref)
     _edited(run, edit_tags(run, add=tags))
 

@@ -133,7 +133,10 @@ def edit_tags(run: Run, add: dict[str, str] | None = None, remove: Sequence[str]
         have = ", ".join(sorted(tags)) or "none"
         raise StoreError(f"run {run.id} has no tag {', '.join(map(repr, missing))}; its tags: {have}")
     tags = {k: v for k, v in tags.items() if k not in set(remove)} | add
+    held = run.holds_lock()
     run.update_info(tags=tags)
+    if not held:  # update_info keeps the lock of a run marked running (here: one whose writer died)
+        run.unlock()
     return tags
 
 
@@ -344,8 +347,7 @@ def catalog_text(found: Sequence[Entry], width: int = 80) -> str:
     out = [line({c: h for c, (h, _, _) in _COLUMNS.items()})]
     for r, e in zip(rows, found):
         if e.damage is not None:
-            head = "  ".join(r[c].ljust(widths[c]) for c in shown[:2])
-            out.append(f"{head}  {e.damage}")
+            out.append(f"{e.id.ljust(widths['id'])}  {'damaged'.ljust(widths.get('status', 0))}  {e.damage}")
         else:
             out.append(line(r))
     return "\n".join(out) + "\n"

@@ -120,7 +120,7 @@ def test_compare_of_three_runs_against_the_first(invoke, three):
     assert out.exit_code == 0, out.output
     text = out.output
     assert text.startswith(f"Runs: A = {a.id}, B = {b.id}, C = {c.id}; each later run is compared with A.\n")
-    assert f"Note: B vs A: compared 4 metric row(s) of method(s) m1, m2 on target(s) y; skipped: nothing." in text
+    assert "Note: B vs A: compared 4 metric row(s) of method(s) m1, m2 on target(s) y; skipped: nothing." in text
     assert ("Note: C vs A: compared 2 metric row(s) of method(s) m1 on target(s) y; skipped: method(s) m2 only in A; "
             "method(s) m3 only in C; target(s) z only in C.") in text
     # each later run's section is the two-run report of that pair (C labelled C)

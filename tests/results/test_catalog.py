@@ -219,3 +219,16 @@ def test_records_for_scripts(store):
     csv = catalog.catalog_csv(entries(store, NOW)).splitlines()
     assert csv[0].startswith("id,name,dataset,methods,status,jobs_done,jobs_total,failed_jobs,created,wall_s,tags")
     assert csv[1].endswith(",owner=ana;stage=dev,") and '"naive-mean,krls"' in csv[1]
+
+
+def test_tagging_a_killed_run_leaves_it_unlocked(tmp_path):
+    store = RunStore(tmp_path / "runs")
+    killed = stored_run(store, "killed", {"krls": [0.4]}, status="running", n_jobs=2)
+    killed.unlock()
+    assert edit_tags(killed, add={"k": "v"}) == {"k": "v"}
+    assert not killed.holds_lock() and not (killed.path / "run.lock").exists()
+    (e,) = entries(store)
+    assert (e.status, e.tags) == ("interrupted", {"k": "v"})
+    (killed.path / "environment.json").unlink()
+    line = catalog.catalog_text(entries(store), 20).splitlines()[1]
+    assert line == f"{killed.id}  damaged  environment.json is missing"  # narrower than the id: still whole
