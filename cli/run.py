@@ -99,7 +99,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     from enginebench.results.tables import default_paired_metric
 
     paired_metric = default_paired_metric(cfg.get("mode", ""))
-    click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric), nl=False)
+    click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric, out.width), nl=False)
     for key, why in result.damaged.items():
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
     from enginebench.results.notes import note_lines

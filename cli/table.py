@@ -53,13 +53,13 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         console = Console(width=width) if width else Console()
         console.print(tables.to_rich(summary, cols, title=run.id, units=units, width=console.width))
         if paired_metric:
-            click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric))
+            click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric, console.width))
         for line in notes:
             click.echo(line)  # not through rich: a reason is one line, never wrapped
         return
     text = {
         "term": lambda: tables.to_term(summary, cols, title=run.id, units=units, width=width or 80) + (
-            "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric) if paired_metric else ""),
+            "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric, width or 80) if paired_metric else ""),
         "md": lambda: tables.to_markdown(summary, cols, units=units) + (
             "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric) if paired_metric else ""),
         "latex": lambda: tables.to_latex(summary, cols, units=units),
@@ -91,9 +91,10 @@ def job_note_lines(run, width: int = 200) -> list[str]:
             + edge_note_lines(run.job_metas().values()))
 
 
-def paired_lines(tests, metric: str) -> str:
-    """Plain sentences for the paired tests of each method against its block's best (raw and Holm p-values)."""
+def paired_lines(tests, metric: str, width: int | None = None) -> str:
+    """Plain sentences for the paired tests of each method against its block's best (raw and Holm p-values),
+    wrapped to `width` columns when given."""
     from enginebench.results.tables import paired_text
 
-    return paired_text(tests, metric)
+    return paired_text(tests, metric, width)
 

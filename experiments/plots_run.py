@@ -30,6 +30,7 @@ from enginebench.experiments.spec import from_dict
 from enginebench.methods.base import EXPLAIN_WEIGHTS, Method
 from enginebench.results.plots import scatter_plot, trajectory_plot
 from enginebench.results.store import Run
+from enginebench.results.units import run_units
 
 
 @dataclass
@@ -153,6 +154,7 @@ def plot_run(
 ) -> PlotReport:
     """Write trajectory and scatter PNGs of ``run`` into ``out_dir``; returns the paths and notes."""
     simulated, notes = simulate_run(run, methods, trajectories, part, repetition, max_inputs)
+    units = run_units(run.info())  # {} for a run made before units were recorded: labels without units
     out = Path(out_dir)
     report = PlotReport(notes=notes, simulated=simulated)
     for sim in simulated:
@@ -164,7 +166,7 @@ def plot_run(
             report.paths.append(trajectory_plot(
                 sim.time[k] - sim.time[k][0], sim.truth[k], {m: v[k] for m, v in sim.sims.items()},
                 None if gate is None else gate[k], path, inputs=sim.inputs[k], scale=sim.scale, title=title,
-                ylabel=target,
+                ylabel=target, unit=units.get(target, ""), input_units=units,
             ))
             if gate_label:
                 report.bands[report.paths[-1]] = gate_label
@@ -173,6 +175,7 @@ def plot_run(
             report.paths.append(scatter_plot(
                 np.concatenate(sim.truth), np.concatenate(values), path,
                 title=f"{name}: {target}, {part} trajectories shown (run {run.id})", label=target,
+                unit=units.get(target, ""),
             ))
     return report
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import html
 import math
 import shutil
+import textwrap
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -519,8 +520,12 @@ def paired_tests(metrics: pd.DataFrame, metric: str = "mae") -> pd.DataFrame:
     return out
 
 
-def paired_text(tests: pd.DataFrame, metric: str) -> str:
-    """Plain sentences for the paired tests of each method against its block's best, raw and Holm p-values."""
+def paired_text(tests: pd.DataFrame, metric: str, width: int | None = None) -> str:
+    """Plain sentences for the paired tests of each method against its block's best, raw and Holm p-values.
+
+    With `width`, each sentence wraps at spaces to that many columns (continuation lines
+    indented); names and numbers are never split.
+    """
     if tests.empty:
         return ""
     m = int(tests["t_pvalue"].notna().sum())
@@ -538,4 +543,7 @@ def paired_text(tests: pd.DataFrame, metric: str) -> str:
                          f"Wilcoxon p = {r.wilcoxon_pvalue:.2g}, Holm {w_holm:.2g}; n = {r.n_pairs})")
         else:  # a family of one test: Holm changes nothing
             lines.append(f"{where}  (paired t p = {r.t_pvalue:.2g}, Wilcoxon p = {r.wilcoxon_pvalue:.2g}, n = {r.n_pairs})")
+    if width:
+        lines = [textwrap.fill(x, width, subsequent_indent="      ", break_long_words=False, break_on_hyphens=False,
+                               drop_whitespace=True, initial_indent="") if len(x) > width else x for x in lines]
     return "\n".join(lines) + "\n"
