@@ -3,7 +3,10 @@
 A plugin (a ``--plugin file.py`` or a package registered under the ``enginebench.methods``
 entry point group) imports from here only::
 
-    from enginebench.api import Method, MethodError, SegmentPredictions, log_grid, split_rows
+    from enginebench.api import Declaration, Method, MethodError, SegmentPredictions, declare, log_grid, split_rows
+
+``Declaration`` and the field constructors of ``declare`` (``declare.flag``, ``declare.whole``,
+``declare.log_grid``...) declare a method's options once (``Method.declared_options``).
 
 Names here are kept stable across releases; the modules they come from (methods.base,
 datasets.samples, testing) are internal and may move. ``check_method`` is the
@@ -13,7 +16,9 @@ build samples for tests of one's own.
 
 from __future__ import annotations
 
+from enginebench import declare
 from enginebench.datasets.samples import RawSegments, SamplePool, Samples, SegmentSamples
+from enginebench.declare import Declaration
 from enginebench.errors import MethodError
 from enginebench.methods.base import (
     FAMILIES,
@@ -32,6 +37,7 @@ __all__ = [
     "FAMILIES",
     "ConformanceError",
     "ConformanceReport",
+    "Declaration",
     "Method",
     "MethodError",
     "Params",
@@ -43,6 +49,7 @@ __all__ = [
     "SegmentSamples",
     "check_log_grid_option",
     "check_method",
+    "declare",
     "grid_points",
     "log_grid",
     "split_rows",
