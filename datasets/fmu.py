@@ -122,7 +122,8 @@ def open_fmu(path: str | Path, fmi_type: str | None = None) -> FMUFile:
     platforms = fmpy.supported_platforms(str(path))
     if fmpy.platform not in platforms:
         binaries = [p for p in platforms if p != "c-code"]
-        sources = "; it holds C sources: compile them with fmpy.util.compile_platform_binary" if "c-code" in platforms else ""
+        sources = ("; it holds C sources: compile them with fmpy.util.compile_platform_binary"
+                   if "c-code" in platforms else "")
         raise DataError(f"{path}: no binary for this platform ({fmpy.platform}); the FMU has binaries for "
                         f"{', '.join(binaries) or 'no platform'}{sources}; export it for {fmpy.platform}")
     present = [t for t, part in (("CoSimulation", md.coSimulation), ("ModelExchange", md.modelExchange))
@@ -153,8 +154,9 @@ def check_names(config: Mapping[str, Any], fmu: FMUFile, columns: Sequence[str] 
                 if column not in columns:
                     close = difflib.get_close_matches(column, list(columns), n=1)
                     hint = f"did you mean {close[0]!r}? " if close else ""
-                    raise DataError(f"{origin}: [physical_model] {key}: {column!r} is not a column declared in [columns]; "
-                                    f"{hint}the keys are the dataset's column names, the values the FMU's variables")
+                    raise DataError(f"{origin}: [physical_model] {key}: {column!r} is not a column declared in "
+                                    f"[columns]; {hint}the keys are the dataset's column names, the values the "
+                                    "FMU's variables")
     for column, name in config["inputs"].items():
         var = fmu.variable(name, f"physical_model.inputs, column {column!r}")
         if var.causality != "input":
@@ -190,7 +192,8 @@ def _quiet_callbacks(messages: list[str]) -> Iterator[None]:
     previous = sys.unraisablehook
 
     def keep(unraisable: Any) -> None:
-        messages.append(_one_line(unraisable.exc_value) if unraisable.exc_value is not None else "solver callback failed")
+        exc = unraisable.exc_value
+        messages.append(_one_line(exc) if exc is not None else "solver callback failed")
 
     sys.unraisablehook = keep
     try:
@@ -320,7 +323,8 @@ class FMUPhysicalModel:
 
         return fit_parameters(self, segments, self.dt).after
 
-    def simulate(self, params: Mapping[str, Any], segment: Mapping[str, np.ndarray], dt: float) -> dict[str, np.ndarray]:
+    def simulate(self, params: Mapping[str, Any], segment: Mapping[str, np.ndarray],
+                 dt: float) -> dict[str, np.ndarray]:
         """The mapped outputs over one segment (its first time stamp is the FMU's t = 0)."""
         t = np.asarray(segment["time"], dtype=float)
         missing = [c for c in self.inputs if c not in segment]

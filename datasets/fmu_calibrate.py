@@ -133,7 +133,9 @@ def load_fat_points(path: str | Path, model: Any) -> pd.DataFrame:
         raise DataError(f"{path}: no FAT points; give one operating point per row")
     for column in (*model.inputs, *outputs):
         values = pd.to_numeric(fat[column], errors="coerce").to_numpy(dtype=float)
-        bad = ~np.isfinite(values) if column in model.inputs else (~np.isfinite(values) & fat[column].notna().to_numpy())
+        bad = ~np.isfinite(values)
+        if column not in model.inputs:  # a blank output cell: not measured at that point
+            bad &= fat[column].notna().to_numpy()
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
             raise DataError(f"{path}, column {column!r}, point {row + 1}: {fat[column].iloc[row]!r} is not a finite "

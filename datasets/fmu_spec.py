@@ -30,7 +30,8 @@ from enginebench.errors import SpecError
 KEY = "physical_model"
 FMU_KEYS = ("fmu", "inputs", "outputs", "parameters", "calibrate", "weights", "fmi_type", "tolerance")
 FMI_TYPES = ("CoSimulation", "ModelExchange")
-EXAMPLE = '[physical_model] fmu = "engine.fmu", inputs = { column = "fmu variable" }, outputs = { target = "fmu variable" }'
+EXAMPLE = ('[physical_model] fmu = "engine.fmu", inputs = { column = "fmu variable" }, '
+           'outputs = { target = "fmu variable" }')
 
 
 def _where(origin: Path, key: str | None = None) -> str:
