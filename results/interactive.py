@@ -311,7 +311,8 @@ document.querySelectorAll("table.sortable").forEach(function (table) {
       var key = function (r) { var s = r.cells[col].textContent.trim(), v = parseFloat(s); return isNaN(v) ? s : v; };
       rows.sort(function (a, b) {
         var x = key(a), y = key(b), kx = typeof x, ky = typeof y;
-        var c = kx === ky ? (x < y ? -1 : x > y ? 1 : 0) : (kx === "number" ? -1 : 1);
+        if (kx !== ky) return kx === "number" ? -1 : 1;  // text ("n/a") after the numbers either way
+        var c = x < y ? -1 : x > y ? 1 : 0;
         return up ? c : -c;
       });
       rows.forEach(function (r) { body.appendChild(r); });
@@ -322,7 +323,7 @@ document.querySelectorAll("table.sortable").forEach(function (table) {
 });
 </script>
 """
-"""Click a header to sort a ``table.sortable`` by that column (numbers by value, ascending then descending)."""
+"""Click a header to sort a ``table.sortable`` by that column (numbers by value, ascending then descending; text last)."""
 
 
 def sortable_table(headers: Sequence[str], rows: Sequence[Sequence[str]], bold: Sequence[Sequence[bool]] | None = None,

@@ -392,3 +392,18 @@ def test_report_renders_in_headless_chromium_without_console_messages(which, req
     assert console == []  # no error, no warning, nothing logged at all
     assert _count(dom, "js-plotly-plot") == len(page.figures) > 0  # every figure was drawn by plotly.js
     assert _count(dom, "main-svg") >= len(page.figures)
+
+
+@browser
+def test_clicking_a_header_sorts_the_table_by_value(tmp_path):
+    table = ia.sortable_table(["method", "mae"], [["a", "10.5 ± 1"], ["b", "n/a"], ["c", "2 ± 0.1"], ["d", "0.3"]])
+    page = tmp_path / "sort.html"
+    clicks = "<script>var h = document.querySelectorAll('th'); h[1].click(); document.body.dataset.asc = " \
+             "Array.from(document.querySelectorAll('tbody tr td:first-child')).map(c => c.textContent).join(); " \
+             "h[1].click();</script>"
+    page.write_text(f"<html><body>{table}{ia.SORT_SCRIPT}{clicks}</body></html>")
+    dom, console = render(page, tmp_path)
+    assert console == []
+    assert 'data-asc="d,c,a,b"' in dom  # by number (0.3 < 2 < 10.5, not as text), "n/a" last
+    rows = re.findall(r"<tr><td>(\w)</td>", dom)
+    assert rows == ["a", "c", "d", "b"]  # the second click sorts descending, "n/a" still last
