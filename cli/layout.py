@@ -46,11 +46,12 @@ def layout(run_refs: tuple[str, ...], paper, legacy, literature: bool, fmt: str,
     from enginebench.errors import DataError
     from enginebench.results import layouts
     from enginebench.results.store import RunStore
+    from enginebench.results.units import run_units
 
     layout = _paper(paper, legacy)
     check_output(output)
     rs = RunStore(store)
-    frames, owner, datasets = [], {}, []
+    frames, owner, datasets, units = [], {}, [], {}
     seen: set[str] = set()
     for ref in run_refs:
         run = rs.get(ref)
@@ -65,6 +66,7 @@ def layout(run_refs: tuple[str, ...], paper, legacy, literature: bool, fmt: str,
             owner[tuple(key)] = run.id
         frames.append(m)
         datasets.append(str(run.config().get("dataset", "")))
+        units.update(run_units(run.info()))
     metrics = pd.concat(frames, ignore_index=True)
     dataset = ", ".join(dict.fromkeys(d for d in datasets if d))
     if layout == "turboshaft-moe":
@@ -73,7 +75,7 @@ def layout(run_refs: tuple[str, ...], paper, legacy, literature: bool, fmt: str,
                 else layouts.turboshaft_moe_markdown(table, layouts.turboshaft_moe_paired(metrics), dataset=dataset))
     else:
         table = layouts.egt_hybrid_table(metrics, literature=literature)
-        text = table.to_csv(index=False) if fmt == "csv" else layouts.egt_hybrid_markdown(table, dataset=dataset)
+        text = table.to_csv(index=False) if fmt == "csv" else layouts.egt_hybrid_markdown(table, dataset=dataset, units=units)
     emit(text, output)
 
 

@@ -15,7 +15,7 @@ the order of magnitude, never a target the synthetic datasets could be compared 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -23,6 +23,7 @@ import pandas as pd
 from enginebench.errors import DataError
 from enginebench.papers import PAPERS
 from enginebench.results.stats import paired_pvalues, t_interval
+from enginebench.results.units import axis_label
 
 PUBLISHED = Path(__file__).resolve().parent / "published"
 LEGACY_FILES = {"literature-seed000.csv": "literature-egt-hybrid.csv",
@@ -247,14 +248,19 @@ def egt_hybrid_table(metrics: pd.DataFrame, literature: bool = True, split: str 
     return pd.DataFrame(rows, columns=EGT_HYBRID_COLUMNS)
 
 
-def egt_hybrid_markdown(table: pd.DataFrame, dataset: str = "") -> str:
-    """Markdown of ``egt_hybrid_table``: one table per target, rows Delta x model, cells mean ± CI."""
+def egt_hybrid_markdown(table: pd.DataFrame, dataset: str = "", units: Mapping[str, str] | None = None) -> str:
+    """Markdown of ``egt_hybrid_table``: one table per target, rows Delta x model, cells mean ± CI.
+
+    `units` ({target: unit}, the run's ``info["units"]``) head the MAE column and the title
+    (``MAE [degC]``); without one the MAE header has no unit.
+    """
     if table.empty:
         raise DataError("egt-hybrid layout: the table is empty")
-    head = ["Δ s", "model", "source", "MAE", "MAPE %", "PPMCC", "n"]
     out = []
     for target, block in table.groupby("target", sort=False):
-        out.append(f"### {target}{f' — {dataset}' if dataset else ''}\n")
+        unit = (units or {}).get(str(target), "")
+        head = ["Δ [s]", "model", "source", axis_label("MAE", unit), "MAPE [%]", "PPMCC [-]", "n"]
+        out.append(f"### {axis_label(str(target), unit)}{f' — {dataset}' if dataset else ''}\n")
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
         for r in block.sort_values(["window", "source"], kind="stable").itertuples(index=False):

@@ -215,3 +215,17 @@ def test_plot_run_labels_read_the_units_the_run_recorded(long_run, tmp_path, mon
     assert f"measured {LONG_TARGET} [degC]" in labels and f"predicted {LONG_TARGET} [degC]" in labels
     legends = {t.get_text() for fig in figures for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()}
     assert {"u1 [V]", "u2 [bar]"} <= legends
+
+
+def test_the_egt_hybrid_layout_heads_its_columns_with_units():
+    from enginebench.results.layouts import egt_hybrid_markdown, egt_hybrid_table
+
+    rows = [{"target": "t_exh", "mode": "window", "window": 5.0, "method": "krls", "split": "test", "metric": m,
+             "value": v + 0.1 * r, "repetition": r, "status": "ok"}
+            for m, v in (("mae", 2.0), ("mape", 0.5), ("ppmcc", 0.9)) for r in range(3)]
+    table = egt_hybrid_table(pd.DataFrame(rows), literature=False)
+    md = egt_hybrid_markdown(table, units={"t_exh": "degC"}).splitlines()
+    assert md[0] == "### t_exh [degC]"
+    assert md[2] == "| Δ [s] | model | source | MAE [degC] | MAPE [%] | PPMCC [-] | n |"
+    assert md[4].startswith("| 5 | krls | this run | 2.1 ± 0.25 | 0.6 ± 0.25 | 1 ± 0.25 | 3 |")
+    assert egt_hybrid_markdown(table).splitlines()[2] == "| Δ [s] | model | source | MAE | MAPE [%] | PPMCC [-] | n |"
