@@ -185,7 +185,12 @@ def one_line_reason(exc: BaseException, limit: int = 300) -> str:
 
 
 def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """Run one job; failures become a 'failed' record with the reason, never an exception."""
+    """Run one job; failures become a 'failed' record with the reason, never an exception.
+
+    Returns (metric rows, metadata); after a selection over a grid the metadata carries the
+    job's selection table (a DataFrame under ``results.store.SELECTION_META``), which
+    ``Run.write_job`` stores as the job's selection file.
+    """
     spec = ctx.spec
     problem = ctx.problems[(job.target, job.window, job.split)]
     method = ctx.methods[job.method]

@@ -87,8 +87,8 @@ SELECTION_DIR = "selection"
 """The folder of a run holding one selection table per job that selected hyperparameters."""
 SELECTION_META = "selection_table"
 """The key under which a job's metadata brings its selection table (a DataFrame) to ``Run.write_job``."""
-SELECTION_COLUMNS = {"target": object, "window": float, "split": object, "method": object, "repetition": "int64",
-                     "point": "int64", "resample": "int64", "score": float, "criterion": object, "chosen": bool}
+SELECTION_COLUMNS = {"target": "str", "window": "float64", "split": "str", "method": "str", "repetition": "int64",
+                     "point": "int64", "resample": "int64", "score": "float64", "criterion": "str", "chosen": "bool"}
 """The fixed columns of ``Run.selection_table`` (the ``param:<name>`` columns come after ``point``)."""
 REQUIRED_FILES = ("run.json", "config.toml", "environment.json")
 """The files every run folder needs; a run missing one is damaged."""
@@ -662,7 +662,7 @@ class Run:
         params = [c for c in out.columns if c.startswith("param:")]
         fixed = list(SELECTION_COLUMNS)
         at = fixed.index("point") + 1
-        return out[fixed[:at] + params + fixed[at:]].astype({c: t for c, t in SELECTION_COLUMNS.items() if t is not object})
+        return out[fixed[:at] + params + fixed[at:]].astype(SELECTION_COLUMNS)
 
     def metrics(self) -> pd.DataFrame:
         """All metric rows of all finished jobs (one long frame); a damaged job file is refused by name."""
