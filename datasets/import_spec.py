@@ -27,7 +27,7 @@ REQUIRED_KEYS = ("name", "dt", "columns")
 
 
 def _delimiter(value: Any) -> Any:
-    if len(value) != 1 or value in "\"\r\n":
+    if not isinstance(value, str) or len(value) != 1 or value in "\"\r\n":
         raise Invalid(DELIMITER)
     return value
 
@@ -56,8 +56,8 @@ KEYS = Declaration(
     text("record", None, "column whose change of value starts a new record"),
     text("rate_column", None, "a sample-rate column checked against dt, never imported", unit="Hz"),
     text("period_column", None, "a sample-period column checked against dt, never imported", unit="s"),
-    text("delimiter", None, "CSV delimiter; default a tab for .tsv files, else a comma", check=_delimiter,
-         message=DELIMITER),
+    anything("delimiter", None, "CSV delimiter, one character; default a tab for .tsv files, else a comma",
+             check=_delimiter, type_label="str | None"),
     anything("provenance", "", "where the data come from", check=_any_text),
     anything("licence", "", "the data's licence", check=_any_text),
     whole("min_segment_rows", 2, "shortest segment accepted", low=1, unit="rows"),
