@@ -47,7 +47,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.declare import Declaration, whole
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
-from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
+from enginebench.methods.freerun import (ENVELOPE, Envelope, GivenOrders, Trajectory, check_prediction_inputs,
                                          derived_orders, init_window, orders, padded_past, training_trajectories)
 
 NAME = "arx"
@@ -150,7 +150,7 @@ def _poly(coefs: Sequence[float], first_power: int, lead: str = "") -> str:
 
 
 # --------------------------------------------------------------------------- method
-class ARX(Method):
+class ARX(GivenOrders, Method):
     """Linear ARX baseline: least squares one step ahead, free-run simulation from the init window."""
 
     name = NAME
@@ -168,20 +168,17 @@ class ARX(Method):
         ENVELOPE,
     )
 
-    def __init__(self, **options: Any) -> None:
-        super().__init__(**options)
-        self._orders = {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
-
     def search_space(self, data: Samples) -> SearchSpace:
         """Tied order (na = nb) derived from the training data, or na and nb from the options; nk (0, 1) by default."""
+        given = self.given_orders
         sizes = [len(s) for s in data.segments] or [0]
         derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_order"]),
                                  ORDER_BASE)
-        nk = self._orders["nk"] if self._orders["nk"] is not None else list(DEFAULT_NK)
-        if self._orders["na"] is None and self._orders["nb"] is None:
+        nk = given["nk"] if given["nk"] is not None else list(DEFAULT_NK)
+        if given["na"] is None and given["nb"] is None:
             return {"order": np.array(derived), "nk": np.array(nk)}
-        na = self._orders["na"] if self._orders["na"] is not None else derived
-        nb = self._orders["nb"] if self._orders["nb"] is not None else derived
+        na = given["na"] if given["na"] is not None else derived
+        nb = given["nb"] if given["nb"] is not None else derived
         return {"na": np.array(na), "nb": np.array(nb), "nk": np.array(nk)}
 
     @staticmethod

@@ -142,6 +142,16 @@ def as_orders(value: object) -> list[int] | None:
     return sorted({int(v) for v in values})
 
 
+class GivenOrders:
+    """Mixin of the ARX-type methods: their ``na``, ``nb``, ``nk`` options as sorted lists (None: derived)."""
+
+    options: dict
+
+    @property
+    def given_orders(self) -> dict[str, list[int] | None]:
+        return {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
+
+
 def orders(name: str, default: object, meaning: str, low: int = 0, high: int | None = None, why: str = "",
            message: str = "", **kw: object) -> Field:
     """An order option (samples): None (derived from the data), one whole number in [low, high] or a list of them.

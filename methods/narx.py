@@ -78,7 +78,7 @@ from enginebench.errors import MethodError
 from enginebench.declare import Declaration, flag, whole
 from enginebench.declare import log_grid as grid
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
-from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
+from enginebench.methods.freerun import (ENVELOPE, Envelope, GivenOrders, Trajectory, check_prediction_inputs,
                                          derived_orders, init_window, orders, training_trajectories)
 from enginebench.methods.kernels import check_positive, gaussian, sq_distances
 
@@ -376,7 +376,7 @@ def _nystroem_ridge(Z: np.ndarray, y: np.ndarray, C: np.ndarray, gamma: float, l
 
 
 # --------------------------------------------------------------------------- method
-class NARX(Method):
+class NARX(GivenOrders, Method):
     """Kernel NARX: KRLS on lagged outputs and inputs, one step ahead; predicted in free run."""
 
     name = NAME
@@ -407,24 +407,21 @@ class NARX(Method):
         ENVELOPE,
     )
 
-    def __init__(self, **options: Any) -> None:
-        super().__init__(**options)
-        self._orders = {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
-
     # -- grid ---------------------------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:
         """Lags (tied na = nb unless given), nk, gamma and lambda (module docstring)."""
+        given = self.given_orders
         sizes = [len(s) for s in data.segments] or [0]
         derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_lag"]),
                                  LAG_BASE)
         space: SearchSpace = {}
-        na, nb = self._orders["na"], self._orders["nb"]
+        na, nb = given["na"], given["nb"]
         if na is None and nb is None:
             space["lags"] = np.array(derived)
         else:
             space["na"] = np.array(na if na is not None else derived)
             space["nb"] = np.array(nb if nb is not None else derived)
-        space["nk"] = np.array(self._orders["nk"])
+        space["nk"] = np.array(given["nk"])
         space["gamma"] = log_grid(*self._grid("gamma_grid"))
         space["lambda"] = log_grid(*self._grid("lambda_grid"))
         return space
