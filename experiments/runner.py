@@ -25,6 +25,7 @@ from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
 from enginebench.experiments.executors import check_executor, default_workers, run_dask, run_local
 from enginebench.experiments.jobs import Context, Job, Problem
+from enginebench.experiments.search import check_search
 from enginebench.experiments.selection import record_blocks
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
@@ -124,9 +125,10 @@ def check_protocol(spec: ExperimentSpec, problems: dict[tuple[str, float, str], 
 
     A selection needing a validation part the split lacks; a simulation-mode bootstrap over
     fewer than two training records; more k-fold blocks than the training rows can hold
-    (each block needs its own init window and something to score).
+    (each block needs its own init window and something to score); a search whose library is missing.
     """
     sel = spec.selection
+    check_search(sel.search)  # bayes without optuna: refused before the first job
     for (target, window, split), problem in problems.items():
         where = f"split {split!r}"
         if sel.kind == "validation" and "validation" not in problem.parts:

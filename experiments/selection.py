@@ -18,6 +18,7 @@ import pandas as pd
 from enginebench.datasets.samples import Samples
 from enginebench.datasets.splits import blocked_folds
 from enginebench.errors import MethodError, SpecError
+from enginebench.experiments.search import range_positions, range_warnings, search_points
 from enginebench.experiments.spec import Selection
 from enginebench.methods.base import Method, grid_points
 
@@ -206,13 +207,18 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     None), and holds the scores of every grid point on
     every resample or fold under ``table`` (a :class:`SelectionTable`; absent when
     nothing was scored: an empty or one-point grid, ``kind = "none"``).
+
+    ``selection.search`` "random" or "bayes" tries ``selection.trials`` points over the ranges
+    the grid spans instead (``experiments/search.py``), on the same resamples or folds (drawn
+    first); the table then lists the trials in order, and ``grid_edges`` and the warnings
+    flag a selected value within 2 % of its range's ends (``range_positions``).
     """
-    grid = grid_points(method.search_space(train))
+    space = method.search_space(train)
+    grid = grid_points(space)
     if not grid:
         return {}, {"grid_size": 0}
     if len(grid) == 1 or selection.kind == "none":
         return grid[0], {"grid_size": len(grid)}
-    total = np.zeros(len(grid))
     if selection.kind == "validation":
         if validation is None:
             raise MethodError("selection kind 'validation' needs a split with a validation part")
@@ -225,23 +231,38 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
         parts = [(train.take(f), train.take(v)) for f, v in resample_pairs(len(train), selection, rng, sizes)]
     if not parts:
         raise MethodError(f"model selection for {method.name!r}: no usable resample (training set of {len(train)} rows)")
-    scores = np.empty((len(grid), len(parts)))
-    for j, (fit_part, val_part) in enumerate(parts):
-        preds = method.predict_grid(fit_part, val_part.without_targets(), grid, rng)
-        scores[:, j] = grid_scores(preds, val_part, selection.criterion)
+
+    def evaluate(points: list[dict[str, Any]]) -> np.ndarray:
+        scores = np.empty((len(points), len(parts)))
+        for j, (fit_part, val_part) in enumerate(parts):
+            preds = method.predict_grid(fit_part, val_part.without_targets(), points, rng)
+            scores[:, j] = grid_scores(preds, val_part, selection.criterion)
+        return scores
+
+    if selection.search == "grid":
+        scores = evaluate(grid)
+    else:  # random or bayes: points drawn or proposed over the ranges the grid spans (experiments/search.py)
+        grid, scores = search_points(space, selection.search, selection.trials, rng, evaluate)
+    total = np.zeros(len(grid))
+    for j in range(len(parts)):
         total += scores[:, j]
     mean = total / len(parts)
     if not np.isfinite(mean).any():
         raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
     best = int(np.argmin(mean))
-    space = method.search_space(train)
     rules, options = edge_rules(method)
-    edges = grid_positions(space, grid[best], rules)
+    if selection.search == "grid":
+        edges = grid_positions(space, grid[best], rules)
+        warnings = edge_warnings(method.name, space, grid[best], rules)
+    else:
+        edges = range_positions(space, grid[best], rules, WARNED_EDGES)
+        warnings = range_warnings(method.name, edges)
     for name, found in edges.items():
         found["option"] = options.get(name)
     record = {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts),
               "grid_edges": edges, "table": SelectionTable(grid, scores, selection.criterion, best)}
-    warnings = edge_warnings(method.name, space, grid[best], rules)
+    if selection.search != "grid":
+        record["search"] = selection.search
     if warnings:
         record["warnings"] = warnings
     return grid[best], record

@@ -24,6 +24,8 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
     folds = 5
     criterion = "mae"                   # mae | rmae | rmse
     refit = true                        # refit the chosen point on training + validation rows
+    search = "grid"                     # grid | random | bayes (optuna: pip install enginebench[search])
+    trials = 50                         # points tried by random and bayes
 
     [methods.krls]                      # constructor options of a method
     gamma_grid = [-4, 4, 41]
@@ -40,9 +42,10 @@ from pathlib import Path
 from typing import Any, Callable
 
 from enginebench.datasets.samples import MODES
-from enginebench.declare import (Declaration, Invalid, anything, choice, flag, is_number, listing, number, table, text,
-                                 whole)
+from enginebench.declare import (Declaration, Invalid, anything, choice, did_you_mean, flag, is_number, listing, number,
+                                 table, text, whole)
 from enginebench.errors import SpecError
+from enginebench.experiments.search import SEARCHES
 
 SELECTION_KINDS = ("bootstrap", "kfold", "validation", "none")
 CRITERIA = ("mae", "rmae", "rmse")
@@ -77,6 +80,13 @@ def _record_names(value: Any) -> Any:
 def _roles(value: Any) -> Any:
     if not all(isinstance(v, str) for v in value.values()):
         raise Invalid("'roles' must be a table of column = role")
+    return value
+
+
+def _search(value: Any) -> str:
+    if not (isinstance(value, str) and value in SEARCHES):
+        hint = did_you_mean(value, SEARCHES) if isinstance(value, str) else ""
+        raise Invalid("selection search {value} is not one of " + ", ".join(SEARCHES) + hint)
     return value
 
 
@@ -120,6 +130,11 @@ SELECTION = Declaration(
     choice("criterion", "mae", "score minimised on the held-out part", CRITERIA,
            message="selection criterion {value} is not one of " + ", ".join(CRITERIA)),
     flag("refit", True, "refit the chosen point on training + validation rows"),
+    anything("search", "grid", "grid (every point of the methods' grids), random (trials points drawn from the "
+             "ranges the grids span) or bayes (optuna's TPE over those ranges)", check=_search,
+             type_label="choice: " + " | ".join(SEARCHES)),
+    whole("trials", 50, "points tried by search random or bayes", low=1,
+          message="selection trials must be a whole number >= 1, got {value}"),
 )
 SELECTION_KEYS = tuple(SELECTION.names())
 
@@ -164,6 +179,8 @@ SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
 
 DEFAULT_ONLY_IN_HASH = {"init_samples": 0}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
+SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50}
+"""The same for [selection] keys: earlier runs' configs (and hashes) stay as they were."""
 
 
 @dataclass(frozen=True)
@@ -174,6 +191,10 @@ class Selection:
     criterion: str = "mae"
     refit: bool = True
     """After selection, fit the chosen point on the training rows plus the validation part (kind 'validation')."""
+    search: str = "grid"
+    """grid | random | bayes (``experiments/search.py``)."""
+    trials: int = 50
+    """Points tried by random and bayes search."""
 
 
 @dataclass(frozen=True)
@@ -204,8 +225,9 @@ class ExperimentSpec:
         for key, default in DEFAULT_ONLY_IN_HASH.items():
             if d[key] == default:
                 del d[key]
-        if d["selection"]["refit"] is True:  # the default: earlier runs' configs (and hashes) stay as they were
-            del d["selection"]["refit"]
+        for key, default in SELECTION_DEFAULT_ONLY_IN_HASH.items():
+            if d["selection"][key] == default and type(d["selection"][key]) is type(default):
+                del d["selection"][key]
         return d
 
     def config_hash(self) -> str:

@@ -10,7 +10,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.moe.explain import describe, gate_weights
 from enginebench.methods.moe.fitted import MoEFitted
-from enginebench.methods.moe.options import HYPERPARAMETERS, OPTIONS
+from enginebench.methods.moe.options import OPTIONS, search_space
 from enginebench.methods.moe.simulation import simulate
 from enginebench.methods.moe.training import fit_mixture
 
@@ -26,17 +26,10 @@ class MoE(Method):
     declared_options = OPTIONS
 
     def search_space(self, data: Samples) -> SearchSpace:
-        return {
-            "n_experts": np.array([2, 3, 4]),
-            "beta1": np.array([1.0]),
-            "beta2": np.array([0.1, 1.0]),
-            "k": np.array([1.0]),
-            "gate_hidden": np.array([16]),
-            # from the least-squares warm start a small rate refines; a large one may trade
-            # simulation accuracy for derivative fit: the validation RMAE decides
-            "lr": np.array([1e-3, 1e-2]),
-            "epochs": np.array([HYPERPARAMETERS["epochs"]]),
-        }
+        """The candidates of the ``*_grid`` options (defaults: 2-4 experts, beta2 0.1 or 1, lr 1e-3 or 1e-2;
+        from the least-squares warm start a small rate refines, a large one may trade simulation accuracy for
+        derivative fit: the validation score decides)."""
+        return search_space(self.options)
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MoEFitted:
         self.check_mode(train.mode)

@@ -51,6 +51,16 @@ CORRECT_MESSAGE = ("{name}={value} must map columns to {input: [reference > 0, e
 NAMES_MESSAGE = "{name}={value} must be a list of input column names or None"
 
 
+def _grid_message(what: str, example: str) -> str:
+    return ("{name}={value} must be a non-empty list of " + what + ", the candidates model selection searches (e.g. "
+            + example + "); 3 or more evenly spaced values span a range for search random or bayes")
+
+
+GRID_OPTIONS = {"n_experts": "experts_grid", "beta1": "beta1_grid", "beta2": "beta2_grid", "k": "k_grid",
+                "gate_hidden": "gate_hidden_grid", "lr": "lr_grid", "epochs": "epochs_grid"}
+"""Searched hyperparameter -> the option that lists its candidates."""
+
+
 def _init(value: Any) -> Any:
     if value != "lstsq":
         raise Invalid("{name}={value}; only 'lstsq' (the sign-bounded least-squares start) is available: the "
@@ -142,6 +152,22 @@ OPTIONS = Declaration(
     choice("dtype", "float32", "torch floating-point precision", ("float32", "float64")),
     whole("cpu_threads", 1, "torch intra-op threads on CPU while fitting and simulating; None = leave as is",
           low=1, nullable=True, message="{name}={value} must be a positive integer or None"),
+    # the searched hyperparameters' candidates (model selection tries their product, or the ranges they span)
+    listing("experts_grid", (2, 3, 4), "numbers of experts searched", items="int", low=1, searches=("n_experts",),
+            message=_grid_message("whole numbers >= 1", "[2, 3, 4]")),
+    listing("beta1_grid", (1.0,), "weights of the collaborative loss term searched (seed eq. 4)", items="float",
+            low=0, searches=("beta1",), message=_grid_message("numbers >= 0", "[0.1, 1.0]")),
+    listing("beta2_grid", (0.1, 1.0), "weights of the competitive loss term searched (seed eq. 4)", items="float",
+            low=0, searches=("beta2",), message=_grid_message("numbers >= 0", "[0.1, 1.0]")),
+    listing("k_grid", (1.0,), "softplus sharpness k of the signed coefficients searched (seed eq. 6)",
+            items="float", low=0, low_open=True, searches=("k",),
+            message=_grid_message("numbers > 0", "[0.5, 1.0, 2.0]")),
+    listing("gate_hidden_grid", (16,), "hidden units of the gate network searched", items="int", low=1,
+            searches=("gate_hidden",), message=_grid_message("whole numbers >= 1", "[8, 16, 32]")),
+    listing("lr_grid", (1e-3, 1e-2), "Adam learning rates searched", items="float", low=0, low_open=True,
+            searches=("lr",), message=_grid_message("numbers > 0", "[1e-4, 1e-3, 1e-2]")),
+    listing("epochs_grid", (HYPERPARAMETERS["epochs"],), "training epochs searched", items="int", low=1,
+            searches=("epochs",), message=_grid_message("whole numbers >= 1", "[50, 100, 150]")),
 )
 """Every option of ``moe``: default, kind, unit and meaning."""
 
@@ -149,6 +175,13 @@ OPTIONS = Declaration(
 def default_options() -> dict[str, Any]:
     """Every option of ``moe`` with its default (``OPTIONS`` says what each means)."""
     return OPTIONS.defaults()
+
+
+def search_space(options: Params) -> dict[str, np.ndarray]:
+    """The searched hyperparameters' candidates from the ``*_grid`` options (integers as int arrays, the rest
+    float), in ``HYPERPARAMETERS`` order."""
+    return {name: np.array(options[GRID_OPTIONS[name]], dtype=int if isinstance(HYPERPARAMETERS[name], int) else float)
+            for name in HYPERPARAMETERS}
 
 
 def resolve_params(params: Params) -> dict[str, Any]:
