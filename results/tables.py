@@ -462,7 +462,7 @@ def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: 
     parts: list[object] = [Text(title, style="bold")] if title else []
     for head, table in term_blocks(summary, metrics, units=units, width=width):
         parts += [Text(""), Text(head, style="bold"), table]
-    parts += [Text("")] + [Text(n) for n in table_notes(summary, cells)]
+    parts += [Text("")] + [Text(n) for n in table_notes(summary, cells)] + [Text("")]  # a gap before what follows
     return Group(*parts)
 
 
@@ -544,6 +544,6 @@ def paired_text(tests: pd.DataFrame, metric: str, width: int | None = None) -> s
         else:  # a family of one test: Holm changes nothing
             lines.append(f"{where}  (paired t p = {r.t_pvalue:.2g}, Wilcoxon p = {r.wilcoxon_pvalue:.2g}, n = {r.n_pairs})")
     if width:
-        lines = [textwrap.fill(x, width, subsequent_indent="      ", break_long_words=False, break_on_hyphens=False,
-                               drop_whitespace=True, initial_indent="") if len(x) > width else x for x in lines]
+        lines = [textwrap.fill(x, width, subsequent_indent="      " if k else "", break_long_words=False,
+                               break_on_hyphens=False) if len(x) > width else x for k, x in enumerate(lines)]
     return "\n".join(lines) + "\n"
