@@ -52,7 +52,7 @@ def _title(ax, title: str, width_in: float) -> None:
 def normalised_label(name: str, unit: str = "", scale: float | None = None) -> str:
     """The y label of an axis divided by the training mean |y|: it says so in words, and gives the scale."""
     by = f" = {scale:.4g} {unit}".rstrip() if scale is not None else ""
-    return f"{name}, normalised [-]\n(divided by its training mean |y|{by})"
+    return f"{name}\nnormalised [-]: divided by its\ntraining mean |y|{by}"  # short lines: the panel's height
 
 
 def _save(fig, path: str | Path) -> Path:

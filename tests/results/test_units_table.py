@@ -187,7 +187,10 @@ def test_figure_axes_carry_units_and_normalised_axes_say_so():
     box, page = top.title.get_window_extent(), fig.bbox
     assert box.x0 >= page.x0 and box.x1 <= page.x1
     scaled = trajectory_figure(t, y, {"m": y + 1}, None, ylabel="WF", unit="kg/h", scale=412.0)
-    assert scaled.axes[0].get_ylabel() == "WF, normalised [-]\n(divided by its training mean |y| = 412 kg/h)"
+    assert scaled.axes[0].get_ylabel() == "WF\nnormalised [-]: divided by its\ntraining mean |y| = 412 kg/h"
+    scaled.canvas.draw()  # the three short lines fit the panel's height
+    box, axes_box = scaled.axes[0].yaxis.label.get_window_extent(), scaled.axes[0].get_window_extent()
+    assert box.y0 >= axes_box.y0 - 1 and box.y1 <= axes_box.y1 + 1
     sc = scatter_figure(y, y + 1, label="WF", unit="kg/h")
     assert (sc.axes[0].get_xlabel(), sc.axes[0].get_ylabel()) == ("measured WF [kg/h]", "predicted WF [kg/h]")
     assert scatter_figure(y, y, label="WF").axes[0].get_xlabel() == "measured WF"  # no unit known
@@ -211,7 +214,7 @@ def test_plot_run_labels_read_the_units_the_run_recorded(long_run, tmp_path, mon
     monkeypatch.setattr(plots_run, "scatter_plot", keep(scatter_figure))
     plots_run.plot_run(run, tmp_path / "fig", trajectories=1)
     labels = {ax.get_ylabel() for fig in figures for ax in fig.axes} | {ax.get_xlabel() for fig in figures for ax in fig.axes}
-    assert f"{LONG_TARGET}, normalised [-]" in "\n".join(labels)
+    assert f"{LONG_TARGET}\nnormalised [-]: divided by its\ntraining mean |y| = " in "\n".join(labels)
     assert f"measured {LONG_TARGET} [degC]" in labels and f"predicted {LONG_TARGET} [degC]" in labels
     legends = {t.get_text() for fig in figures for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()}
     assert {"u1 [V]", "u2 [bar]"} <= legends
