@@ -12,8 +12,9 @@ instead (:func:`infer_range`), so every method, plugins included, gets them for 
 
 ``random`` draws ``trials`` points from the ranges with the job's generator (duplicates of a
 discrete space dropped); ``bayes`` asks optuna's TPE sampler, seeded from the job's generator,
-for ``BAYES_BATCH`` points at a time and tells it each point's mean score. Both evaluate a
-batch of points together, so a method's ``predict_grid`` still shares what it can.
+for ``BAYES_BATCH`` points at a time and tells it each point's mean score (a point proposed
+again is told its first score, not scored twice). Both evaluate a batch of points together,
+so a method's ``predict_grid`` still shares what it can.
 """
 
 from __future__ import annotations
@@ -144,25 +145,32 @@ Evaluate = Callable[[list[dict[str, Any]]], np.ndarray]
 def bayes_points(space: Mapping[str, Range], trials: int, rng: np.random.Generator, evaluate: Evaluate,
                  batch: int = BAYES_BATCH) -> tuple[list[dict[str, Any]], np.ndarray]:
     """``trials`` points proposed by optuna's TPE sampler (seeded by one draw of ``rng``) in batches of ``batch``,
-    each batch scored by ``evaluate`` and told back as its mean score; (points, scores) in trial order."""
+    each batch's new points scored by ``evaluate`` and every proposal told back its mean score; (distinct points,
+    their scores) in trial order: a point proposed again (a discrete space) is told its first score, not re-scored."""
     optuna = optuna_module()
     seed = int(rng.integers(0, 2**31 - 1))
     points: list[dict[str, Any]] = []
-    scores: list[np.ndarray] = []
+    rows: dict[tuple[Any, ...], np.ndarray] = {}
+    asked_so_far = 0
     with warnings.catch_warnings():  # constant_liar and multivariate are experimental: no job warning for that
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         sampler = optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True)
         study = optuna.create_study(sampler=sampler, direction="minimize")
-        while len(points) < trials:
-            asked = [study.ask() for _ in range(min(batch, trials - len(points)))]
+        while asked_so_far < trials:
+            asked = [study.ask() for _ in range(min(batch, trials - asked_so_far))]
+            asked_so_far += len(asked)
             proposed = [{name: _suggest(t, r) for name, r in space.items()} for t in asked]
-            got = np.asarray(evaluate(proposed), dtype=float)
-            for t, row in zip(asked, got):
-                mean = float(row.mean())
+            keys = [tuple(p.values()) for p in proposed]
+            new = [i for i, k in enumerate(keys) if k not in rows and k not in keys[:i]]
+            if new:
+                got = np.asarray(evaluate([proposed[i] for i in new]), dtype=float)
+                for i, row in zip(new, got):
+                    rows[keys[i]] = row
+                    points.append(proposed[i])
+            for t, key in zip(asked, keys):
+                mean = float(rows[key].mean())
                 study.tell(t, mean if np.isfinite(mean) else float("inf"))
-            points += proposed
-            scores.append(got)
-    return points, np.concatenate(scores, axis=0)
+    return points, np.stack([rows[tuple(p.values())] for p in points])
 
 
 def search_points(space: Mapping[str, np.ndarray], search: str, trials: int, rng: np.random.Generator,

@@ -119,6 +119,16 @@ def test_search_is_deterministic_under_a_seed(flat, search):
     assert r1["search"] == search and r1["grid_size"] == len(r1["table"].grid)
 
 
+def test_optuna_says_nothing_that_would_become_a_job_warning(flat):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:  # as a job catches them (jobs.caught_warnings)
+        warnings.simplefilter("always")
+        _pick(flat, "bayes", 0, trials=20)
+    assert [str(w.message) for w in caught] == []
+    assert optuna.logging.get_verbosity() == optuna.logging.WARNING  # no "Trial N finished" line per trial
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_bayes_finds_the_optimum_of_the_toy_objective(flat, seed):
     _, params, record = _pick(flat, "bayes", seed)
@@ -140,6 +150,27 @@ def test_random_asks_for_every_point_at_once_and_bayes_in_batches(flat):
     method, _, record = _pick(flat, "bayes", 0, trials=20)
     assert BAYES_BATCH == 8 and method.calls == [8, 8, 8, 8, 4, 4]  # each batch: one call per resample
     assert len(record["table"].grid) == 20 and record["table"].scores.shape == (20, 2)
+
+
+class DiscreteObjective(ToyObjective):
+    """A 3 x 2 discrete space scored (n - 3)^2 + [s == "y"]."""
+
+    def search_space(self, data):
+        return {"n": np.array([2, 3, 4]), "s": np.array(["x", "y"], dtype=object)}
+
+    def predict_grid(self, train, data, grid, rng):
+        self.calls.append(len(grid))
+        value = np.array([(p["n"] - 3) ** 2 + (p["s"] == "y") for p in grid], dtype=float)
+        return np.broadcast_to(10.0 + value[:, None, None], (len(grid), len(data), 1)).copy()
+
+
+@pytest.mark.parametrize("search", ["random", "bayes"])
+def test_a_point_proposed_twice_is_scored_once(flat, search):
+    method = DiscreteObjective()
+    params, record = select(method, flat, Selection(search=search, trials=30, resamples=2), np.random.default_rng(0))
+    grid = record["table"].grid
+    assert len({tuple(p.values()) for p in grid}) == len(grid) <= 6 and sum(method.calls) == 2 * len(grid)
+    assert params == {"n": 3, "s": "x"} and record["best_score"] == 0.0
 
 
 def test_the_table_lists_the_trials_in_order_with_their_scores(flat):
