@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 from importlib import resources
@@ -19,7 +20,9 @@ from enginebench.experiments.spec import Selection, from_dict, load_spec
 from enginebench.methods.base import Method, grid_points
 from helpers import make_toy, toy_spec
 
-optuna = pytest.importorskip("optuna")
+HAS_OPTUNA = importlib.util.find_spec("optuna") is not None
+needs_optuna = pytest.mark.skipif(not HAS_OPTUNA, reason="optuna is not installed (pip install enginebench[search])")
+SEARCHES = ["random", pytest.param("bayes", marks=needs_optuna)]
 
 
 # ----------------------------------------------------------------------------- ranges from a search space
@@ -108,7 +111,7 @@ def _pick(flat, search: str, seed: int, trials: int = 60, **kw):
     return method, params, record
 
 
-@pytest.mark.parametrize("search", ["random", "bayes"])
+@pytest.mark.parametrize("search", SEARCHES)
 def test_search_is_deterministic_under_a_seed(flat, search):
     _, p1, r1 = _pick(flat, search, 3, trials=20)
     _, p2, r2 = _pick(flat, search, 3, trials=20)
@@ -119,8 +122,11 @@ def test_search_is_deterministic_under_a_seed(flat, search):
     assert r1["search"] == search and r1["grid_size"] == len(r1["table"].grid)
 
 
+@needs_optuna
 def test_optuna_says_nothing_that_would_become_a_job_warning(flat):
     import warnings
+
+    import optuna
 
     with warnings.catch_warnings(record=True) as caught:  # as a job catches them (jobs.caught_warnings)
         warnings.simplefilter("always")
@@ -129,6 +135,7 @@ def test_optuna_says_nothing_that_would_become_a_job_warning(flat):
     assert optuna.logging.get_verbosity() == optuna.logging.WARNING  # no "Trial N finished" line per trial
 
 
+@needs_optuna
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_bayes_finds_the_optimum_of_the_toy_objective(flat, seed):
     _, params, record = _pick(flat, "bayes", seed)
@@ -144,6 +151,7 @@ def test_random_finds_the_optimum_of_the_toy_objective_more_loosely(flat, seed):
     assert record["best_score"] < 0.15
 
 
+@needs_optuna
 def test_random_asks_for_every_point_at_once_and_bayes_in_batches(flat):
     method, _, record = _pick(flat, "random", 0, trials=20)
     assert method.calls == [20, 20]  # one predict_grid call per resample
@@ -164,7 +172,7 @@ class DiscreteObjective(ToyObjective):
         return np.broadcast_to(10.0 + value[:, None, None], (len(grid), len(data), 1)).copy()
 
 
-@pytest.mark.parametrize("search", ["random", "bayes"])
+@pytest.mark.parametrize("search", SEARCHES)
 def test_a_point_proposed_twice_is_scored_once(flat, search):
     method = DiscreteObjective()
     params, record = select(method, flat, Selection(search=search, trials=30, resamples=2), np.random.default_rng(0))
@@ -173,6 +181,7 @@ def test_a_point_proposed_twice_is_scored_once(flat, search):
     assert params == {"n": 3, "s": "x"} and record["best_score"] == 0.0
 
 
+@needs_optuna
 def test_the_table_lists_the_trials_in_order_with_their_scores(flat):
     _, params, record = _pick(flat, "bayes", 5, trials=12)
     table = record["table"]
@@ -184,6 +193,7 @@ def test_the_table_lists_the_trials_in_order_with_their_scores(flat):
     np.testing.assert_allclose(frame.loc[frame["resample"] == 0, "param:a"], [p["a"] for p in table.grid])
 
 
+@needs_optuna
 def test_a_pick_near_a_range_end_is_a_warning_and_an_edge(flat):
     # a spans 10^-1 .. 10^1: the optimum 10^1.3 lies beyond the upper end
     _, params, record = _pick(flat, "bayes", 0, a_range=(-1, 1))
@@ -244,7 +254,8 @@ def test_bayes_without_optuna_is_refused_before_the_first_job(monkeypatch, tmp_p
 
     monkeypatch.setitem(sys.modules, "optuna", None)  # import optuna -> ImportError
     check_search("random")
-    message = r"^\[selection\] search = 'bayes' needs optuna, which is not installed; pip install enginebench\[search\]$"
+    message = (r"^\[selection\] search = 'bayes' needs optuna, which is not installed; "
+               r"pip install enginebench\[search\]$")
     with pytest.raises(SpecError, match=message):
         check_search("bayes")
     store = RunStore(tmp_path / "runs")
@@ -254,6 +265,7 @@ def test_bayes_without_optuna_is_refused_before_the_first_job(monkeypatch, tmp_p
 
 
 # ----------------------------------------------------------------------------- end to end
+@needs_optuna
 def test_a_bayes_run_stores_its_trials_in_the_selection_table(tmp_path, toy_parquet):
     from enginebench.experiments.runner import run_experiment
     from enginebench.results.store import RunStore
