@@ -7,6 +7,11 @@ at None; a number gives seconds, as before. At the turboshaft's 12 Hz both equal
 former 2 s and 20 s. ``init`` accepts only "lstsq" (the sign-bounded least-squares warm
 start); the output-error start (``init = "output_error"``) added nothing in the turboshaft
 experiments and was removed, and so was the unused random start.
+
+The searched hyperparameters' candidates are options too (``experts_grid``, ``beta1_grid``,
+``beta2_grid``, ``k_grid``, ``gate_hidden_grid``, ``lr_grid``, ``epochs_grid``; ``search_space``
+reads them): the defaults are the space always searched; 3 or more evenly spaced values span
+a range for ``[selection] search = "random"`` or ``"bayes"``.
 """
 
 from __future__ import annotations
