@@ -123,6 +123,9 @@ class _Sim:
     record_gate: bool
     lengths: np.ndarray | None = None
     """Samples per segment (rows past it are padding); None: every segment fills U."""
+    fused: bool = True
+    """One network call for the samples and the RK4 midpoints, products of 1 x 1 maps as elementwise
+    products (exact); False: the former path (two network calls, matmuls), kept as the reference."""
 
     def _regressors(self, z: torch.Tensor | None, u: torch.Tensor) -> torch.Tensor:
         """[z; u_e; 1] (..., q); with ``z=None`` only the input part [u_e; 1]."""
@@ -173,8 +176,18 @@ class _Sim:
         Returns Phi (S, b-a, k, k), gamma (S, b-a, k) and the gate (S, b-a+1, M) at samples a..b.
         """
         o = self.options
-        A, w, alpha = self._affine_parts(self.U[:, a : b + 1])  # at samples a..b
+        midpoints = o["integrator"] == "rk4" and o["input_interp"] != "hold"
+        if self.fused and midpoints:  # samples a..b and the midpoints between them through the network at once
+            n = b - a + 1
+            u_mid = 0.5 * (self.U[:, a:b] + self.U[:, a + 1 : b + 1])
+            A_all, w_all, alpha_all = self._affine_parts(torch.cat([self.U[:, a : b + 1], u_mid], dim=1))
+            A, w, alpha = A_all[:, :n], w_all[:, :n], alpha_all[:, :n]
+            mid: tuple[torch.Tensor, torch.Tensor] | None = (A_all[:, n:], w_all[:, n:])
+        else:
+            A, w, alpha = self._affine_parts(self.U[:, a : b + 1])  # at samples a..b
+            mid = None
         k = A.shape[-1]
+        mm = _matmul(k, self.fused)
         eye = torch.eye(k, dtype=A.dtype, device=A.device)
         h = self.H[:, a:b, None]
         A0, w0 = A[:, :-1], w[:, :-1]
@@ -183,14 +196,14 @@ class _Sim:
         if o["input_interp"] == "hold":
             Am, wm, A1, w1 = A0, w0, A0, w0
         else:
-            Am, wm, _ = self._affine_parts(0.5 * (self.U[:, a:b] + self.U[:, a + 1 : b + 1]))
+            Am, wm = mid if mid is not None else self._affine_parts(0.5 * (self.U[:, a:b] + self.U[:, a + 1 : b + 1]))[:2]
             A1, w1 = A[:, 1:], w[:, 1:]
         hh = h[..., None]
-        mv = lambda M, x: (M @ x[..., None])[..., 0]  # noqa: E731
+        mv = lambda M, x: mm(M, x[..., None])[..., 0]  # noqa: E731
         P1, q1 = A0, w0
-        P2, q2 = Am @ (eye + 0.5 * hh * P1), mv(Am, 0.5 * h * q1) + wm
-        P3, q3 = Am @ (eye + 0.5 * hh * P2), mv(Am, 0.5 * h * q2) + wm
-        P4, q4 = A1 @ (eye + hh * P3), mv(A1, h * q3) + w1
+        P2, q2 = mm(Am, eye + 0.5 * hh * P1), mv(Am, 0.5 * h * q1) + wm
+        P3, q3 = mm(Am, eye + 0.5 * hh * P2), mv(Am, 0.5 * h * q2) + wm
+        P4, q4 = mm(A1, eye + hh * P3), mv(A1, h * q3) + w1
         Phi = eye + hh / 6.0 * (P1 + 2 * P2 + 2 * P3 + P4)
         gamma = h / 6.0 * (q1 + 2 * q2 + 2 * q3 + q4)
         return Phi, gamma, alpha
@@ -199,8 +212,9 @@ class _Sim:
         """Differentiable open-loop trajectories (S, L, k) of an LPV model from ``z`` (S, k):
         no envelope, no divergence hold (for training on the simulation error)."""
         Phi, gamma, _ = self.step_maps(0, self.U.shape[1] - 1)
-        M, c = affine_prefix_scan(Phi, gamma)
-        return torch.cat([z[:, None], (M @ z[:, None, :, None])[..., 0] + c], dim=1)
+        M, c = affine_prefix_scan(Phi, gamma, fused=self.fused)
+        mm = _matmul(z.shape[-1], self.fused)
+        return torch.cat([z[:, None], mm(M, z[:, None, :, None])[..., 0] + c], dim=1)
 
     def affine(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
         """LPV models (schedulers free of the state): dz/dt = A(t) z + w(t), so one RK4 or Euler
@@ -219,9 +233,15 @@ class _Sim:
                 gates[:, a : b + 1] = alpha
             part = torch.empty((S, b - a, k), dtype=z.dtype, device=z.device)
             zz = z
-            for n in range(b - a):
-                zz = (Phi[:, n] @ zz[..., None])[..., 0] + gamma[:, n]
-                part[:, n] = zz
+            if self.fused and k == 1:  # z' = phi z + gamma elementwise: the same products, no batched matmul
+                phi, gam = Phi[:, :, 0], gamma
+                for n in range(b - a):
+                    zz = phi[:, n] * zz + gam[:, n]
+                    part[:, n] = zz
+            else:
+                for n in range(b - a):
+                    zz = (Phi[:, n] @ zz[..., None])[..., 0] + gamma[:, n]
+                    part[:, n] = zz
             # divergence: keep the valid prefix of each segment, hold its last valid state after
             part, alive = hold_after_exit(part, z, alive, self.lo, self.hi)
             traj[:, a + 1 : b + 1] = part
@@ -229,21 +249,27 @@ class _Sim:
         return traj, gates, alive
 
 
-def affine_prefix_scan(Phi: torch.Tensor, gamma: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _matmul(k: int, fused: bool = True):
+    """Product of (..., k, k) maps: for k = 1 (one target) an elementwise product, which is the
+    same single multiplication per entry without a batched-matmul call; else ``torch.matmul``."""
+    return torch.mul if fused and k == 1 else torch.matmul
+
+
+def affine_prefix_scan(Phi: torch.Tensor, gamma: torch.Tensor, fused: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
     """All prefixes of the affine recurrence z_{n+1} = Phi_n z_n + gamma_n in log2(N) batched steps.
 
     ``Phi`` (S, N, k, k), ``gamma`` (S, N, k). Returns (M, c) with z_{n+1} = M_n z_0 + c_n. The
     maps compose associatively, (M2, c2) o (M1, c1) = (M2 M1, M2 c1 + c2), so a Hillis-Steele scan
     (doubling the reach each round) replaces N sequential steps; differentiable, for training on
-    simulated windows.
+    simulated windows. With one state (k = 1) and ``fused`` the products are elementwise (exact).
     """
     M, c = Phi, gamma
     d, N = 1, Phi.shape[1]
+    mm = _matmul(Phi.shape[-1], fused)
     while d < N:
         M, c = (
-            torch.cat([M[:, :d], M[:, d:] @ M[:, :-d]], dim=1),
-            torch.cat([c[:, :d], (M[:, d:] @ c[:, :-d, :, None])[..., 0] + c[:, d:]], dim=1),
+            torch.cat([M[:, :d], mm(M[:, d:], M[:, :-d])], dim=1),
+            torch.cat([c[:, :d], mm(M[:, d:], c[:, :-d, :, None])[..., 0] + c[:, d:]], dim=1),
         )
         d *= 2
     return M, c
-

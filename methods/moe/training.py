@@ -84,13 +84,15 @@ class _Shooting:
         H = np.stack([np.diff(self.Ts[j][a + idx]) for j, a in starts])
         return U, H, Z
 
-    def loss(self, net: MixtureOfExperts, o: dict[str, Any], U: torch.Tensor, H: torch.Tensor, Z: torch.Tensor) -> torch.Tensor:
-        """Mean squared simulation error (standardised units) of windows ``U``, ``H``, ``Z``."""
+    def loss(self, net: MixtureOfExperts, o: dict[str, Any], U: torch.Tensor, H: torch.Tensor, Z: torch.Tensor,
+             fused: bool = True) -> torch.Tensor:
+        """Mean squared simulation error (standardised units) of windows ``U``, ``H``, ``Z``
+        (``fused``: ``_Sim``'s one-network-call path; False its reference path)."""
         inf = torch.full((Z.shape[-1],), torch.inf, dtype=Z.dtype, device=Z.device)
         sim = _Sim(
             options=o, n_experts=net.n_experts, net=net, U=U, H=H, lo=-inf, hi=inf,
             d_scale=torch.as_tensor(self.d_scale, dtype=Z.dtype, device=Z.device), si=self.si, ei=self.ei,
-            record_gate=False,
+            record_gate=False, fused=fused,
         )
         return ((sim.rollout(Z[:, 0]) - Z) ** 2).mean()
 
@@ -98,6 +100,7 @@ class _Shooting:
 def _train(
     net: MixtureOfExperts, V: np.ndarray, X: np.ndarray, D: np.ndarray, hp: dict[str, Any], o: dict[str, Any],
     gen: torch.Generator, device: torch.device, dtype: torch.dtype, shoot: _Shooting | None = None,
+    fused: bool = True,
 ) -> list[float]:
     """Adam on seed 003's loss with shuffled minibatches; returns the mean loss per epoch.
 
@@ -105,6 +108,11 @@ def _train(
     a share of the epoch's windows (each window once per epoch): the derivative loss weights
     the fast dynamics, the simulation error the slow pole and the static gains that an
     open-loop prediction accumulates.
+
+    ``fused`` (the default) shuffles each epoch's rows and windows once into contiguous
+    tensors that every step slices (no per-step gathers) and simulates windows on
+    ``_Sim``'s fused path; the minibatches, their order and the random draws are the same
+    as with ``fused=False`` (the former loop, kept as the reference for tests and benchmarks).
     """
     Vt, Xt, Dt = (torch.as_tensor(a, dtype=dtype, device=device) for a in (V, X, D))
     opt = torch.optim.Adam(net.parameters(), lr=hp["lr"])
@@ -118,22 +126,34 @@ def _train(
             Uw, Hw, Zw = (torch.as_tensor(a, dtype=dtype, device=device) for a in shoot.cut(gen))
             wperm = torch.randperm(len(Zw), generator=gen).to(device)
             per = -(-len(Zw) // n_steps)
+            if fused:
+                Uw, Hw, Zw = Uw[wperm], Hw[wperm], Zw[wperm]
+        if fused:
+            Vp, Xp, Dp = Vt[perm], Xt[perm], Dt[perm]
         total = torch.zeros((), dtype=dtype, device=device)
         for step, a in enumerate(range(0, n, bs)):
-            idx = perm[a : a + bs]
-            f, alpha = net(Vt[idx], Xt[idx])
-            loss = moe_loss(f, alpha, Dt[idx], hp["beta1"], hp["beta2"], o["competitive"])
+            if fused:
+                v, x, d = Vp[a : a + bs], Xp[a : a + bs], Dp[a : a + bs]
+            else:
+                idx = perm[a : a + bs]
+                v, x, d = Vt[idx], Xt[idx], Dt[idx]
+            f, alpha = net(v, x)
+            loss = moe_loss(f, alpha, d, hp["beta1"], hp["beta2"], o["competitive"])
             if shoot is not None:
-                w = wperm[step * per : (step + 1) * per]
-                if len(w):
-                    loss = loss + o["sim_weight"] * shoot.loss(net, o, Uw[w], Hw[w], Zw[w])
+                lo, hi = step * per, min((step + 1) * per, len(Zw))
+                if hi > lo:
+                    if fused:
+                        Ub, Hb, Zb = Uw[lo:hi], Hw[lo:hi], Zw[lo:hi]
+                    else:
+                        w = wperm[lo:hi]
+                        Ub, Hb, Zb = Uw[w], Hw[w], Zw[w]
+                    loss = loss + o["sim_weight"] * shoot.loss(net, o, Ub, Hb, Zb, fused)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            total += loss.detach() * len(idx)
+            total += loss.detach() * len(v)
         history.append(float(total) / n)
     net.eval()
     if not np.isfinite(history[-1]):
         raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or check the data")
     return history
-

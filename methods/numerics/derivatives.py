@@ -15,7 +15,9 @@ SINDy: 256-sample chunks with sklearn's default tol, see ``methods/sindy_library
 
 from __future__ import annotations
 
+import hashlib
 import warnings
+from collections import OrderedDict
 from typing import Any, Sequence
 
 import numpy as np
@@ -172,17 +174,46 @@ def tv_derivative(y: np.ndarray, t: np.ndarray, alpha: float, **kwargs: int | fl
     return tv_differentiate(y, t, alpha, **kwargs)[1]
 
 
+CACHE_SIZE = 4
+"""Results :func:`segment_derivatives` keeps in memory (least recently used dropped first)."""
+_cache: OrderedDict[bytes, list[np.ndarray]] = OrderedDict()
+
+
+def _cache_key(ys: Sequence[np.ndarray], ts: Sequence[np.ndarray], alpha: float, kwargs: dict[str, Any]) -> bytes:
+    """A digest of the signals, times (values and shapes) and every setting that changes the result."""
+    h = hashlib.blake2b(digest_size=20)
+    h.update(repr((float(alpha), sorted(kwargs.items()), len(ys))).encode())
+    for a in (*ys, *ts):
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        h.update(repr(a.shape).encode())
+        h.update(memoryview(a).cast("B"))
+    return h.digest()
+
+
+def clear_cache() -> None:
+    """Forget every result kept by :func:`segment_derivatives`."""
+    _cache.clear()
+
+
 def segment_derivatives(
     ys: Sequence[np.ndarray], ts: Sequence[np.ndarray], alpha: float, *, where: Sequence[str] | None = None,
-    **kwargs: Any,
+    cache: bool = True, **kwargs: Any,
 ) -> list[np.ndarray]:
     """dy/dt (:func:`differentiate`) of each segment separately, never across segment boundaries.
 
     ``where`` names each segment in a failing segment's error (e.g. "method 'moe', training
-    segment 'f1'"), so the one-line message says which segment to fix.
+    segment 'f1'"), so the one-line message says which segment to fix. With ``cache`` the
+    result is kept in memory keyed on a digest of the signals, times, ``alpha`` and
+    ``kwargs`` (the last ``CACHE_SIZE``): model selection fits every grid point on the same
+    training trajectories, and the derivatives (minutes at full size) are solved once per
+    process instead of once per fit. Callers get copies, so the kept arrays never change.
     """
     if len(ys) != len(ts):
         raise DataError(f"segment derivatives: {len(ys)} signals but {len(ts)} time vectors")
+    key = _cache_key(ys, ts, alpha, kwargs) if cache else b""
+    if cache and key in _cache:
+        _cache.move_to_end(key)
+        return [d.copy() for d in _cache[key]]
     out = []
     for j, (y, t) in enumerate(zip(ys, ts)):
         try:
@@ -191,4 +222,8 @@ def segment_derivatives(
             if where is None:
                 raise
             raise DataError(f"{where[j]}: {exc}") from None
+    if cache:
+        _cache[key] = [d.copy() for d in out]
+        while len(_cache) > CACHE_SIZE:
+            _cache.popitem(last=False)
     return out
