@@ -11,7 +11,11 @@ the extrapolation to the whole plan.
 The sample takes ``--per-method`` jobs of every method, spread over targets, windows and
 repetitions, so the extrapolation weighs each method by its number of jobs. Timings are
 wall seconds of one process on this machine: say the load they ran under when you quote
-them (``os.getloadavg`` is printed).
+them (``os.getloadavg`` is printed). CPU seconds of the process are printed beside them: on
+shared cores they are the steadier figure. The process runs with the BLAS threads a run's
+worker gets (cores // workers, as ``experiments/executors.py`` sets them): left at the
+core count, OpenBLAS's thread hand-offs on loaded cores made a tridiagonalisation ~10x
+slower and inflated the LAPACK-heavy methods' share (issue 18: MTL-KRLS looked 8x KRLS).
 
 Usage: python benchmarks/profile_full.py EXPERIMENT [--per-method 2] [--repeats N] [--workers 2]
 """
@@ -27,6 +31,7 @@ import tempfile
 import time
 from collections import defaultdict
 
+from enginebench.experiments.executors import _limit_threads, default_workers
 from enginebench.experiments.jobs import run_job
 from enginebench.experiments.runner import plan, prepare
 from enginebench.experiments.spec import load_spec
@@ -64,14 +69,25 @@ def _stage_seconds(stats: pstats.Stats) -> dict[str, float]:
 
 
 def _sample(jobs: list, per_method: int) -> list:
-    """``per_method`` jobs of each method, spread evenly over that method's plan."""
+    """``per_method`` jobs of each method, spread evenly over its (window, target, split) groups and repetitions.
+
+    Job i of n takes the group and the repetition at the middle of the i-th of n equal slices
+    (groups ordered by window, then target), so one job per method falls on a middle window
+    and two on the second and fourth quarter: the windows' feature counts, which set the cost of
+    the kernel methods, are sampled across their range, not only the first window.
+    """
     by_method: dict[str, list] = defaultdict(list)
     for job in jobs:
         by_method[job.method].append(job)
     chosen = []
     for method_jobs in by_method.values():
-        step = max(1, len(method_jobs) // per_method)
-        chosen.extend(method_jobs[::step][:per_method])
+        groups = sorted({(j.window, j.target, j.split) for j in method_jobs})
+        reps = sorted({j.repetition for j in method_jobs})
+        index = {(j.window, j.target, j.split, j.repetition): j for j in method_jobs}
+        for i in range(min(per_method, len(method_jobs))):
+            group = groups[int((i + 0.5) * len(groups) / per_method) % len(groups)]
+            rep = reps[int((i + 0.5) * len(reps) / per_method) % len(reps)]
+            chosen.append(index.get((*group, rep), method_jobs[i]))
     return chosen
 
 
@@ -81,13 +97,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--per-method", type=int, default=2, help="jobs profiled per method")
     parser.add_argument("--repeats", type=int, default=None, help="override the experiment's repetitions")
     parser.add_argument("--workers", type=int, default=2, help="workers assumed for the wall-time estimate")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="BLAS threads (default: cores // workers, what a run's worker gets)")
     args = parser.parse_args(argv)
+    threads = args.threads or max(1, default_workers() // max(1, args.workers))
+    _limit_threads(threads)  # as a run's worker process does (BLAS, OpenMP and torch)
 
     spec = load_spec(args.experiment)
     if args.repeats:
         spec = spec.with_overrides(repetitions=args.repeats)
     print(f"{spec.name}: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"load {os.getloadavg()[0]:.1f} at start")
+          f"{threads} thread(s), load {os.getloadavg()[0]:.1f} at start")
     t0 = time.perf_counter()
     ctx = prepare(spec)
     prepare_s = time.perf_counter() - t0
@@ -98,29 +118,34 @@ def main(argv: list[str] | None = None) -> None:
         counts[job.method] += 1
 
     per_method_s: dict[str, list[float]] = defaultdict(list)
+    per_method_cpu: dict[str, list[float]] = defaultdict(list)
     per_method_stage: dict[str, dict[str, float]] = defaultdict(lambda: defaultdict(float))
     with tempfile.TemporaryDirectory() as tmp:
         run = RunStore(tmp).create(spec.name, spec.to_dict(), spec.config_hash(), {}, len(sample))
         for k, job in enumerate(sample, 1):
             prof = cProfile.Profile()
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             prof.enable()
             rows, meta = run_job(ctx, job)
             run.write_job(job.key, rows, meta)
             prof.disable()
-            wall = time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             per_method_s[job.method].append(wall)
+            per_method_cpu[job.method].append(cpu)
             for label, sec in _stage_seconds(pstats.Stats(prof)).items():
                 per_method_stage[job.method][label] += sec
-            print(f"  [{k}/{len(sample)}] {job.key}: {wall:.1f} s ({meta['status']})", flush=True)
+            print(f"  [{k}/{len(sample)}] {job.key}: {wall:.1f} s wall, {cpu:.1f} s CPU ({meta['status']})",
+                  flush=True)
 
     print(f"\nprepare (read + split + arrays): {prepare_s:.1f} s")
-    total_jobs_s = 0.0
+    total_jobs_s = total_cpu_s = 0.0
     for method, walls in per_method_s.items():
         mean = sum(walls) / len(walls)
+        cpu = sum(per_method_cpu[method]) / len(walls)
         total_jobs_s += mean * counts[method]
-        print(f"\n{method}: {len(walls)} job(s) profiled, {mean:.1f} s per job, {counts[method]} jobs in the plan "
-              f"-> {mean * counts[method] / 60:.1f} min")
+        total_cpu_s += cpu * counts[method]
+        print(f"\n{method}: {len(walls)} job(s) profiled, {mean:.1f} s wall ({cpu:.1f} s CPU) per job, "
+              f"{counts[method]} jobs in the plan -> {mean * counts[method] / 60:.1f} min")
         for want, heading in ((1, "stages of a job"), (2, "work inside them (select, fit or predict)")):
             print(f"  {heading}:")
             for depth, label, _funcs in STAGES:
@@ -128,7 +153,8 @@ def main(argv: list[str] | None = None) -> None:
                 if depth == want and sec >= 0.005:
                     print(f"    {label:<30} {sec:9.2f} s  {100 * sec / mean:5.1f} %")
     print(f"\nwhole plan: {len(jobs)} jobs, estimated {total_jobs_s / 3600:.2f} h of job time "
-          f"-> {(prepare_s + total_jobs_s / max(1, args.workers)) / 3600:.2f} h wall on {args.workers} worker(s); "
+          f"-> {(prepare_s + total_jobs_s / max(1, args.workers)) / 3600:.2f} h wall on {args.workers} worker(s) "
+          f"({(prepare_s + total_cpu_s / max(1, args.workers)) / 3600:.2f} h from CPU time, i.e. on idle cores); "
           f"load {os.getloadavg()[0]:.1f} at the end")
 
 
