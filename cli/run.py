@@ -102,9 +102,9 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric, out.width), nl=False)
     for key, why in result.damaged.items():
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
-    from enginebench.results.notes import note_lines
+    from enginebench.results.notes import run_note_lines
 
-    for line in note_lines(result.run.job_notes()):
+    for line in run_note_lines(result.run):
         click.echo(line)  # not through rich: a reason is one line, never wrapped
     if result.n_failed:
         out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench runs show {result.run.id}' "

@@ -58,7 +58,7 @@ def runs_list(dataset, method, statuses, tags, since, fmt, width, store) -> None
 @store_option
 def runs_show(run_ref: str, store) -> None:
     """Config, environment, tags, plugin files, failure reasons and warnings, timings and a per-method summary of RUN."""
-    from enginebench.results.notes import note_lines
+    from enginebench.results.notes import run_note_lines
     from enginebench.results.store import RunStore
     from enginebench.results.tables import summarize
 
@@ -66,7 +66,7 @@ def runs_show(run_ref: str, store) -> None:
     info, cfg, env = run.info(), run.config(), run.environment()
     plugins = run.plugins() or []
     metrics = run.metrics() if run.job_files() else None  # read first: a damaged job file is the only line printed
-    notes = note_lines(run.job_notes())
+    notes = run_note_lines(run)
     click.echo(f"run {run.id}: {info.get('status')} ({info['finished_jobs'] if 'finished_jobs' in info else len(run.finished_jobs(verify=False))}/{info.get('n_jobs')} jobs, "
                f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
     click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "

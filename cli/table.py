@@ -32,6 +32,7 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     one block per (target, mode, Delta, split) that fits the terminal (or --width).
     """
     from enginebench.results import tables
+    from enginebench.results.notes import run_note_lines
     from enginebench.results.store import RunStore
     from enginebench.results.units import run_units
 
@@ -47,7 +48,7 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         check_metrics(cols, summary["metric"], "--metrics", run.id)
     if paired_metric:
         check_metrics([paired_metric], raw["metric"], "--paired", run.id)
-    notes = job_note_lines(run)
+    notes = run_note_lines(run, width=200)  # a reason longer than 200 characters is cut (runs show prints it whole)
     units = run_units(run.info())  # {} for a run made before units were recorded: headers without units
     if fmt == "term" and output is None:
         console = Console(width=width) if width else Console()
@@ -72,23 +73,6 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     if notes and fmt not in ("term", "md"):  # csv, LaTeX and HTML stay parseable: the notes go to stderr
         for line in notes:
             click.echo(line, err=True)
-
-
-def job_note_lines(run, width: int = 200) -> list[str]:
-    """The run's distinct failure reasons and job warnings with their counts, one short line each.
-
-    Same wording as at the end of ``run`` (``results.notes.note_lines``); a reason longer
-    than ``width`` characters is cut (``runs show`` prints it whole).
-    """
-    from enginebench.results.notes import edge_note_lines, note_lines
-
-    def short(text: str) -> str:
-        text = " ".join(text.split())
-        return text if len(text) <= width else text[: width - 3] + "..."
-
-    notes = run.job_notes()
-    return (note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
-            + edge_note_lines(run.job_metas().values()))
 
 
 def paired_lines(tests, metric: str, width: int | None = None) -> str:

@@ -25,7 +25,7 @@ from enginebench.errors import EngineBenchError
 from enginebench.experiments.report import (REPORT_FILE, Predictions, ReportResult, _synthetic, _time_axis,
                                             is_learning_curve, refit_predictions, write_report)
 from enginebench.results import tables
-from enginebench.results.notes import note_lines
+from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run
 
 INTERACTIVE_FILE = "report.html"
@@ -294,7 +294,7 @@ def write_interactive_report(
         result.notes.append(missing)
     result.figures = list(page.titles)
     result.path.parent.mkdir(parents=True, exist_ok=True)
-    result.path.write_text(_html(run, page, note_lines(run.job_notes()), result.notes), encoding="utf-8")
+    result.path.write_text(_html(run, page, run_note_lines(run), result.notes), encoding="utf-8")
     return result
 
 

@@ -46,7 +46,7 @@ from enginebench.experiments import environment
 from enginebench.experiments.executors import check_executor
 from enginebench.experiments.jobs import Context, Job, Problem
 from enginebench.experiments.runner import (
-    check_protocol, check_workers, execute, load_dataset, physical_model_for, plan,
+    check_protocol, check_workers, context_units, execute, load_dataset, physical_model_for, plan,
 )
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
@@ -253,10 +253,9 @@ def run_learning_curve(
     config, digest = curve_config(spec, months, rows)
     run = store.create(f"{spec.name}-learning-curve", config, digest, environment.capture(spec.seed, workers),
                        curve.n_jobs())
-    run.update_info(kind="learning-curve", dataset_hash=curve.context.dataset_hash, amounts=[
-        {"months": a.months, "train_size": a.train_size, "available_rows": a.available_rows, "hours": a.hours,
-         "whole_training_period": a.whole}
-        for a in curve.amounts])
+    run.update_info(kind="learning-curve", dataset_hash=curve.context.dataset_hash, units=context_units(curve.context),
+                    amounts=[{"months": a.months, "train_size": a.train_size, "available_rows": a.available_rows,
+                              "hours": a.hours, "whole_training_period": a.whole} for a in curve.amounts])
     result = execute(curve.context, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
                      scheduler=scheduler)
     return CurveResult(run=run, amounts=curve.amounts, n_jobs=result.n_jobs, n_failed=result.n_failed)

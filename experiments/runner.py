@@ -216,6 +216,12 @@ def context_of_run(run: Run) -> Context:
     return build()
 
 
+def context_units(ctx: Context) -> dict[str, str]:
+    """``{column: unit}`` of the columns a run loaded (its problems' training data), recorded in run.json as
+    ``units`` for the labels of its tables and figures (``results.units.run_units`` reads them back)."""
+    return {k: u for p in ctx.problems.values() for k, u in p.train.raw.units.items() if u}
+
+
 def run_experiment(
     spec: ExperimentSpec | None,
     store: RunStore,
@@ -244,8 +250,7 @@ def run_experiment(
         ctx = prepare(spec)
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
                            len(plan(ctx)), tags=tags)
-        run.update_info(dataset_hash=ctx.dataset_hash,  # units: {column: unit} of the loaded columns, for labels
-                        units={k: u for p in ctx.problems.values() for k, u in p.train.raw.units.items() if u})
+        run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx))
         return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
                        scheduler=scheduler)
     state = resume.prepare_resume()  # refuses a damaged run, other plugin files, a second writer

@@ -65,6 +65,7 @@ import pandas as pd
 from enginebench.errors import EngineBenchError
 from enginebench.results import tables
 from enginebench.results.store import Run
+from enginebench.results.units import run_units
 
 INSTALL_HINT = 'pip install "enginebench[mlflow]"'
 MAX_PARAM_CHARS = 6000
@@ -549,7 +550,8 @@ def _log_artifacts(client, run_id: str, run: Run, layout: Layout, report_dir: st
             client.log_artifact(run_id, str(run.path / fname))
             artifacts.append(fname)
     with tempfile.TemporaryDirectory(prefix="enginebench-mlflow-") as tmp:
-        (Path(tmp) / "table.csv").write_text(tables.to_csv(layout.table), encoding="utf-8")
+        (Path(tmp) / "table.csv").write_text(tables.to_csv(layout.table, units=run_units(run.info())),
+                                              encoding="utf-8")
         layout.selected.to_csv(Path(tmp) / "selected_hyperparameters.csv", index=False)
         for fname in ("table.csv", "selected_hyperparameters.csv"):
             client.log_artifact(run_id, str(Path(tmp) / fname))

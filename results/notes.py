@@ -1,9 +1,20 @@
 """What a run's jobs said, as lines for people: each failure reason and warning once, with its count;
-how often each searched hyperparameter was picked at an edge of its grid."""
+how often each searched hyperparameter was picked at an edge of its grid.
+
+``run_note_lines(run)`` is the one list every view of a run shows (the end of ``run``,
+``runs show``, ``table``, the static and the interactive report); ``note_lines`` and
+``edge_note_lines`` are its two parts.
+"""
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Any, Iterable, Protocol
+
+
+class _NotedRun(Protocol):
+    def job_notes(self) -> dict[str, dict[tuple[str, str], int]]: ...
+
+    def job_metas(self) -> dict[str, dict[str, Any]]: ...
 
 
 def note_lines(notes: dict[str, dict[tuple[str, str], int]]) -> list[str]:
@@ -54,3 +65,22 @@ def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
         lines.append(f"grid edge: {method}: {param} at the {side} edge of its grid ({at}) in {len(bounds)} of "
                      f"{len(coords)} {unit}: widen {option or 'its grid'}")
     return lines
+
+
+def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
+    """Every note on a stored run's jobs: failure reasons and job warnings with their counts
+    (``note_lines``), then the run-level grid-edge notes (``edge_note_lines``).
+
+    A reason or warning longer than ``width`` characters is cut with "..." (None: whole).
+    Job warnings are kept as the jobs wrote them, so a run whose jobs also warned about
+    an edge pick shows that warning and the grid-edge note.
+    """
+    def short(text: str) -> str:
+        if width is None:
+            return text
+        text = " ".join(text.split())
+        return text if len(text) <= width else text[: width - 3] + "..."
+
+    notes = run.job_notes()
+    return (note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
+            + edge_note_lines(run.job_metas().values()))

@@ -29,7 +29,7 @@ from click.testing import CliRunner
 from enginebench.cli.main import cli
 from enginebench.errors import StoreError
 from enginebench.experiments.runner import run_experiment
-from enginebench.results import store as store_mod
+from enginebench.results import atomic as store_mod  # the store writes every file through atomic._write_bytes
 from enginebench.results.store import RunStore
 from helpers import interrupt_after, toy_spec
 
@@ -230,7 +230,7 @@ def test_latest_is_the_run_created_last_even_past_ten_runs_in_one_second(tmp_pat
         clock["ns"] += 1000
         return clock["ns"]
 
-    monkeypatch.setattr(store_mod.time, "time_ns", fake_ns)
+    monkeypatch.setattr(time, "time_ns", fake_ns)  # the store stamps run ids and created_ns with it
     store = RunStore(tmp_path)
     made = [store.create("burst", {}, "feedbeef00", {}, 1).id for _ in range(12)]
     assert made[0].endswith("-burst-feedbe") and made[11] == made[0] + "-11"

@@ -109,3 +109,12 @@ def test_a_resume_that_fails_before_its_jobs_releases_the_lock(toy_parquet, tmp_
         run_experiment(None, store, workers=1, resume=run)
     assert not run.holds_lock() and not (run.path / "run.lock").exists()
     assert np.isfinite(run.metrics()["value"]).any()
+
+
+def test_a_learning_curve_run_records_the_units_of_its_columns(toy_parquet, tmp_path):
+    """Like an experiment's run (``runner.context_units``): the toy's y is in degC, its inputs in V and bar."""
+    from enginebench.results.units import run_units
+
+    spec = toy_spec(toy_parquet, repetitions=1, train_size=0, selection={"kind": "none"}, methods={"naive-mean": {}})
+    run = run_learning_curve(spec, [0.001], RunStore(tmp_path / "runs"), workers=1).run
+    assert run_units(run.info()) == {"u1": "V", "u2": "bar", "y": "degC"}

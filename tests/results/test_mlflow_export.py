@@ -25,6 +25,7 @@ from enginebench.results import tables
 from enginebench.results.mlflow_export import (build_layout, flatten, key_part, mlflow_key, most_frequent_picks,
                                                resolve_uri, sanitize_key)
 from enginebench.results.store import RunStore
+from enginebench.results.units import run_units
 from helpers import make_toy
 
 pytest.importorskip("mlflow")
@@ -203,7 +204,8 @@ def test_parent_and_one_child_per_method_read_back(run, tmp_path, file_store_all
     assert names == {"config.toml", "environment.json", "run.json", "table.csv", "selected_hyperparameters.csv"}
     local = Path(client.download_artifacts(result.mlflow_run_id, "", str(tmp_path / "dl")))
     assert (local / "config.toml").read_bytes() == (run.path / "config.toml").read_bytes()
-    assert (local / "table.csv").read_text() == tables.to_csv(summary)
+    table = tables.to_csv(summary, units=run_units(run.info()))  # as `table --format csv` writes it: units included
+    assert (local / "table.csv").read_text() == table and ",mae,degC," in table
     selected = pd.read_csv(local / "selected_hyperparameters.csv")
     assert len(selected) == 2 * 3 * 2  # krls: 2 windows x 3 repetitions x (gamma, lambda)
 

@@ -16,6 +16,7 @@ from enginebench.results import tables
 from enginebench.experiments.report import time_trend_plot, write_report
 from helpers import make_toy
 from enginebench.results.store import RunStore
+from enginebench.results.units import run_units
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -64,8 +65,9 @@ def test_report_page_holds_the_tables_and_every_png(static_run, tmp_path):
     page = result.index.read_text()
     raw = static_run.metrics()
     summary = tables.summarize(raw)
-    assert tables.to_html(summary) in page  # the comparison table exactly as `table --format html` prints it
-    assert (out / "table.csv").read_text() == tables.to_csv(summary)
+    units = run_units(static_run.info())  # the comparison table exactly as `table --format html` prints it
+    assert tables.to_html(summary, units=units) in page
+    assert (out / "table.csv").read_text() == tables.to_csv(summary, units=units)
     paired = tables.paired_tests(raw, "mae")
     assert len(paired) == 1 and f"<td>{paired.iloc[0]['method']}</td><td>{paired.iloc[0]['versus']}</td>" in page
     assert static_run.id in page and "Config" in page and "Environment" in page
@@ -193,3 +195,16 @@ def test_report_command(static_run, tmp_path):
     assert res.output.strip().splitlines() == [f"error: run {static_run.id} did not run method(s) sindy; it ran naive-mean, krls"]
     res = runner.invoke(cli, ["report", "nope", "-o", str(out), "--store", store])
     assert res.exit_code == 2 and res.output.startswith("error: no run 'nope'")
+
+
+def test_the_reports_long_table_has_the_unit_of_mae(static_run, tmp_path):
+    """table.csv beside the page gives each metric's unit as ``table --format csv`` does (mae in the target's unit)."""
+    import io
+
+    import pandas as pd
+
+    result = write_report(static_run, tmp_path / "rep", figures=False)
+    table = pd.read_csv(io.StringIO(result.table.read_text()), keep_default_na=False)
+    units = dict(zip(table["metric"], table["unit"]))
+    assert units["mae"] == "degC" and units["rmse"] == "degC" and units["mape"] == "%"
+    assert "mae [degC]" in result.index.read_text()

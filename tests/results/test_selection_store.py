@@ -16,7 +16,7 @@ from enginebench.errors import StoreError
 from enginebench.experiments.jobs import Job, selection_frame
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.selection import SelectionTable
-from enginebench.results import store as store_mod
+from enginebench.results import atomic as store_mod  # the store writes every file through atomic._write_bytes
 from enginebench.results.notes import edge_note_lines
 from enginebench.results.store import SELECTION_COLUMNS, SELECTION_META, RunStore
 from helpers import toy_spec
@@ -175,3 +175,21 @@ def test_resume_recomputes_only_the_job_whose_table_is_damaged(narrow_run, tmp_p
     assert run.damaged_jobs() == {} and len(run.finished_jobs()) == 6
     assert {p.name: p.stat().st_mtime_ns for p in run.job_files() if p.stem != victim.stem} == others
     pd.testing.assert_frame_equal(run.selection_table(), reference)  # recomputed exactly
+
+
+def test_runs_show_and_both_reports_carry_the_grid_edge_note(narrow_run, tmp_path):
+    """One list of notes under every view of a run (``results.notes.run_note_lines``), the grid-edge note included."""
+    import html
+
+    from enginebench.experiments.interactive_report import plotly_available, write_interactive_report
+    from enginebench.experiments.report import write_report
+
+    line = "grid edge: krls: gamma at the upper edge of its grid (0.001) in 3 of 3 repetitions: widen gamma_grid"
+    shown = CliRunner().invoke(cli, ["runs", "show", narrow_run.id, "--store", str(narrow_run.store)])
+    assert shown.exit_code == 0, shown.output
+    assert "  " + line in shown.output.splitlines()
+    page = write_report(narrow_run, tmp_path / "rep", figures=False).index.read_text()
+    assert f"<li class=\"note\">{html.escape(line)}</li>" in page
+    if plotly_available():
+        interactive = write_interactive_report(narrow_run, tmp_path / "rep.html", figures=False).path.read_text()
+        assert f"<li class=\"note\">{html.escape(line)}</li>" in interactive

@@ -1,0 +1,118 @@
+"""The files of one finished job: its metric rows with metadata, and its selection table; encoding and damage checks.
+
+``jobs/<job-key>.parquet`` holds a job's metric rows, with its params, describe() and
+timings as JSON in the file's metadata (``JOB_META_KEY``); ``selection/<job-key>.parquet``
+holds its model-selection scores, the SHA-256 of which is recorded in the job file's
+metadata (``selection_file``). ``Run`` (``results.run_folder``) writes and reads them
+through the functions here.
+
+Faults handled here:
+
+* a damaged job file (truncated, garbled: job files carry Parquet page checksums):
+  ``load_job`` raises one of ``READ_ERRORS``, so reading the run's metrics refuses with a
+  message naming the file, and ``Run.finished_jobs`` does not count it: ``run --resume``
+  recomputes that job and keeps every other job as it is (``Run.damaged_jobs`` names
+  the damaged files and why);
+* a damaged or missing selection table (a failed write of the table removes the job file
+  again): ``selection_bytes`` says why, ``Run.selection_table`` refuses naming the file,
+  and the job counts as damaged exactly like a damaged job file (not finished,
+  recomputed by ``run --resume``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from enginebench.results.atomic import damage_text, read_parquet, table_bytes
+
+JOB_META_KEY = b"enginebench.job"
+"""The key of a job file's Parquet metadata holding the job's metadata (JSON)."""
+SELECTION_DIR = "selection"
+"""The folder of a run holding one selection table per job that selected hyperparameters."""
+SELECTION_META = "selection_table"
+"""The key under which a job's metadata brings its selection table (a DataFrame) to ``Run.write_job``."""
+SELECTION_COLUMNS = {"target": "str", "window": "float64", "split": "str", "method": "str", "repetition": "int64",
+                     "point": "int64", "resample": "int64", "score": "float64", "criterion": "str", "chosen": "bool"}
+"""The fixed columns of ``Run.selection_table`` (the ``param:<name>`` columns come after ``point``)."""
+
+
+def jsonable(obj: Any) -> Any:
+    """JSON-safe copy: numpy scalars and arrays become numbers and lists."""
+    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def encode_job(rows: pd.DataFrame, meta: dict[str, Any]) -> tuple[bytes, bytes | None]:
+    """The bytes of a job file (``rows`` with ``meta`` in its metadata) and of its selection table (None without one).
+
+    A selection table in ``meta`` (a non-empty DataFrame under ``SELECTION_META``) is taken
+    out of the metadata; its SHA-256 and row count are recorded there as ``selection_file``.
+    """
+    meta = dict(meta)
+    selection = meta.pop(SELECTION_META, None)
+    data = None
+    if isinstance(selection, pd.DataFrame) and len(selection):
+        data = table_bytes(pa.Table.from_pandas(selection, preserve_index=False))
+        meta["selection_file"] = {"sha256": hashlib.sha256(data).hexdigest(), "rows": len(selection)}
+    table = pa.Table.from_pandas(rows, preserve_index=False)
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           JOB_META_KEY: json.dumps(jsonable(meta)).encode()})
+    return table_bytes(table), data
+
+
+def load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, dict[str, Any]]:
+    """A job file's rows (when ``frame``) and metadata; raises one of READ_ERRORS when the file is damaged."""
+    table = read_parquet(path)
+    raw = (table.schema.metadata or {}).get(JOB_META_KEY)
+    if raw is None:
+        raise ValueError("no enginebench job metadata in the file")
+    meta = json.loads(raw)
+    if not isinstance(meta, dict):
+        raise ValueError("the job metadata is not a JSON object")
+    if not frame:
+        table.schema.names  # noqa: B018 - decodes the column names, which a garble can break
+        json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
+        return None, meta
+    return table.to_pandas(), meta
+
+
+def selection_bytes(path: Path, meta: dict[str, Any]) -> tuple[bytes | None, str | None]:
+    """(the bytes of the selection file ``path``, None) when the job (metadata ``meta``) recorded one and it is
+    intact, (None, why) when it is damaged, (None, None) when the job has no selection table."""
+    record = meta.get("selection_file")
+    if record is None:
+        return None, None
+    if not isinstance(record, dict) or not isinstance(record.get("sha256"), str):
+        return None, "its record of the selection table is garbled"
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None, f"its selection table {path} is missing"
+    except OSError as exc:
+        return None, f"its selection table {path} is unreadable ({damage_text(exc)})"
+    if hashlib.sha256(data).hexdigest() != record["sha256"]:
+        return None, f"its selection table {path} does not match the SHA-256 recorded in the job file"
+    return data, None
+
+
+def read_selection(data: bytes) -> pd.DataFrame:
+    """A selection table from its file's bytes (page checksums verified); raises one of READ_ERRORS when damaged."""
+    return pq.read_table(pa.BufferReader(data), page_checksum_verification=True).to_pandas()
+
+
+def selection_frame(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    """Selection tables of several jobs as one frame with the columns in order (``SELECTION_COLUMNS``, the
+    ``param:<name>`` columns after ``point``); an empty frame with the fixed columns when there is none."""
+    if not frames:
+        return pd.DataFrame({c: pd.Series(dtype=t) for c, t in SELECTION_COLUMNS.items()})
+    out = pd.concat(frames, ignore_index=True)
+    params = [c for c in out.columns if c.startswith("param:")]
+    fixed = list(SELECTION_COLUMNS)
+    at = fixed.index("point") + 1
+    return out[fixed[:at] + params + fixed[at:]].astype(SELECTION_COLUMNS)
