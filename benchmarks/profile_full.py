@@ -40,7 +40,8 @@ from enginebench.results.store import RunStore
 STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (1, "select (model selection)", (("experiments/selection.py", "select"),)),
     (2, "window features", (("datasets/samples.py", "_features"),)),
-    (2, "kernel matrices", (("methods/kernels.py", "sq_distances"), ("methods/kernels.py", "gaussian"))),
+    (2, "kernel matrices", (("methods/kernels.py", "sq_distances"), ("methods/kernels.py", "gaussian"),
+                                  ("methods/kernels.py", "gaussian_apply"))),
     (2, "factorisations / solves", (("methods/shifted.py", "shifted_solutions"), ("methods/kernels.py", "from_kernel"))),
     (2, "scoring", (("experiments/selection.py", "grid_scores"),)),
     (2, "MoE training epochs", (("methods/moe/training.py", "_train"),)),

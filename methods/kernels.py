@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-from sklearn.metrics.pairwise import euclidean_distances
 from sklearn.preprocessing import StandardScaler
 
 from enginebench.errors import MethodError
@@ -32,19 +31,73 @@ def make_scaler(X: np.ndarray, standardize: bool = True) -> StandardScaler:
     return StandardScaler(with_mean=standardize, with_std=standardize).fit(X)
 
 
+KERNEL_BLOCK_ROWS = 256
+"""Rows of a kernel block in ``gaussian_apply``: 256 x 1,000 training rows is 2 MB, so the
+distance, exponential and product passes run in cache instead of memory."""
+
+
+def sq_norms(A: np.ndarray) -> np.ndarray:
+    """Squared Euclidean norm of every row, (len(A),) (as scikit-learn's ``row_norms(squared=True)``)."""
+    return np.einsum("ij,ij->i", A, A)
+
+
+def _sq_distances(A: np.ndarray, a_norms: np.ndarray, B: np.ndarray, b_norms: np.ndarray,
+                  out: np.ndarray | None = None) -> np.ndarray:
+    """|a|^2 - 2 a.b + |b|^2 clipped at 0, in scikit-learn's order of operations (bit for bit the same)."""
+    D = np.matmul(A, B.T, out=out)
+    D *= -2.0
+    D += a_norms[:, None]
+    D += b_norms[None, :]
+    return np.maximum(D, 0.0, out=D)
+
+
 def sq_distances(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
     """Squared Euclidean distances |a_i - b_j|^2, shape (len(A), len(B)), clipped at 0.
 
-    ``B=None`` means ``B = A`` (the diagonal is then exactly zero).
+    ``B=None`` means ``B = A`` (the diagonal is then exactly zero). The arithmetic of
+    scikit-learn's ``euclidean_distances(A, B, squared=True)``, without its input checks.
     """
-    D = euclidean_distances(A, B, squared=True)
-    return np.maximum(D, 0.0, out=D)
+    A = np.asarray(A, dtype=np.float64)
+    if A.ndim != 2:
+        raise MethodError(f"features must be a 2-D array (rows x features), got shape {A.shape}")
+    if B is None:
+        norms = sq_norms(A)
+        D = _sq_distances(A, norms, A, norms)
+        np.fill_diagonal(D, 0.0)
+        return D
+    B = np.asarray(B, dtype=np.float64)
+    if B.ndim != 2 or B.shape[1] != A.shape[1]:
+        raise MethodError(f"features to compare have shape {B.shape}, expected (rows, {A.shape[1]})")
+    return _sq_distances(A, sq_norms(A), B, sq_norms(B))
 
 
 def gaussian(D: np.ndarray, gamma: float, out: np.ndarray | None = None) -> np.ndarray:
     """Gaussian kernel exp(-gamma * D) from squared distances D: K(x, x') = exp(-gamma |x - x'|^2)."""
     out = np.multiply(D, -float(gamma), out=out)
     return np.exp(out, out=out)
+
+
+def gaussian_apply(X: np.ndarray, X_train: np.ndarray, gamma: float, coef: np.ndarray,
+                   block_rows: int = KERNEL_BLOCK_ROWS) -> np.ndarray:
+    """K(X, X_train) @ coef, (len(X), k), without the whole kernel matrix: blocks of ``block_rows`` rows.
+
+    Each block's distances, kernel and product are formed in one cache-sized buffer with the
+    arithmetic of ``gaussian(sq_distances(X, X_train), gamma) @ coef`` (the same numbers:
+    the product of a row does not depend on the block it is in).
+    """
+    X = np.asarray(X, dtype=np.float64)
+    X_train = np.asarray(X_train, dtype=np.float64)
+    coef = np.asarray(coef, dtype=np.float64)
+    flat = coef.reshape(len(X_train), -1)
+    out = np.empty((len(X), flat.shape[1]))
+    train_norms, norms = sq_norms(X_train), sq_norms(X)
+    buf = np.empty((min(block_rows, len(X)), len(X_train)))
+    for start in range(0, len(X), block_rows):
+        stop = min(start + block_rows, len(X))
+        K = _sq_distances(X[start:stop], norms[start:stop], X_train, train_norms, out=buf[: stop - start])
+        np.multiply(K, -float(gamma), out=K)  # ``gaussian`` in place, inlined (profiles count it once)
+        np.matmul(np.exp(K, out=K), flat, out=out[start:stop])
+    return out.reshape((len(X), *coef.shape[1:]))
 
 
 def check_positive(values: np.ndarray, name: str) -> np.ndarray:

@@ -20,7 +20,7 @@ from enginebench.declare import Declaration, choice, flag, text, whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.kernels import check_positive, gaussian, make_scaler, sq_distances
+from enginebench.methods.kernels import check_positive, gaussian, gaussian_apply, make_scaler, sq_distances
 from enginebench.methods.shifted import ridge_solutions
 
 
@@ -125,8 +125,7 @@ class KRLS(Method):
 
     def predict(self, fitted: KRLSFitted, data: Samples) -> list[np.ndarray]:
         Xe = self._eval_features(fitted.scaler, fitted.X_train, data)
-        K = gaussian(sq_distances(Xe, fitted.X_train), fitted.gamma)
-        return split_rows(K @ fitted.alpha + fitted.y_mean, data)
+        return split_rows(gaussian_apply(Xe, fitted.X_train, fitted.gamma, fitted.alpha) + fitted.y_mean, data)
 
     def describe(self, fitted: KRLSFitted) -> dict[str, Any]:
         return {"gamma": float(fitted.gamma), "lambda": float(fitted.lam), "solver": fitted.solver,

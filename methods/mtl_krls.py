@@ -52,7 +52,7 @@ from enginebench.declare import choice, flag
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.kernels import Spectral, check_positive, gaussian, make_scaler, sq_distances
+from enginebench.methods.kernels import Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances
 from enginebench.methods.krls import KRLS, _check_finite
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
 from enginebench.methods.shifted import shifted_solutions
@@ -186,8 +186,7 @@ class MTLKRLS(KRLS):
 
     def predict(self, fitted: MTLFitted, data: Samples) -> list[np.ndarray]:
         Xe = self._eval(data, fitted.pm_params, fitted.scaler)
-        K = gaussian(sq_distances(Xe, fitted.X_train), fitted.gamma)
-        return split_rows(K @ fitted.alpha + fitted.offset, data)
+        return split_rows(gaussian_apply(Xe, fitted.X_train, fitted.gamma, fitted.alpha) + fitted.offset, data)
 
     def describe(self, fitted: MTLFitted) -> dict[str, Any]:
         return {"gamma": fitted.gamma, "lambda": fitted.lam, "theta": fitted.theta, "n_train": int(fitted.X_train.shape[0]),

@@ -198,6 +198,36 @@ def test_sq_distances_and_gaussian_kernel() -> None:
     assert (np.diag(sq_distances(B)) == 0).all()
 
 
+def test_sq_distances_match_scikit_learn_bit_for_bit() -> None:
+    """Our distances keep scikit-learn's arithmetic (the previous implementation) exactly."""
+    from sklearn.metrics.pairwise import euclidean_distances
+
+    rng = np.random.default_rng(3)
+    for d in (1, 5, 60):
+        A, B = rng.normal(size=(90, d)) * 4, rng.normal(size=(35, d)) + 1
+        assert np.array_equal(sq_distances(A, B), euclidean_distances(A, B, squared=True))
+        assert np.array_equal(sq_distances(A), euclidean_distances(A, squared=True))
+    with pytest.raises(MethodError, match="expected"):
+        sq_distances(A, B[:, :2])
+
+
+@pytest.mark.parametrize("rows, block", [(700, 256), (256, 256), (5, 256), (0, 256), (301, 7)])
+def test_gaussian_apply_equals_the_whole_kernel_matrix(rows: int, block: int) -> None:
+    """The blocked kernel product equals K(X, X_train) @ coef formed whole, 2-D and 1-D coefficients."""
+    from enginebench.methods.kernels import gaussian_apply
+
+    rng = np.random.default_rng(rows)
+    X, Xt = rng.normal(size=(rows, 6)), rng.normal(size=(120, 6))
+    coef = rng.normal(size=(120, 2))
+    ref = gaussian(sq_distances(X, Xt), 0.4) @ coef
+    got = gaussian_apply(X, Xt, 0.4, coef, block_rows=block)
+    assert got.shape == (rows, 2)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+    got1 = gaussian_apply(X, Xt, 0.4, coef[:, 0], block_rows=block)
+    assert got1.shape == (rows,)
+    np.testing.assert_allclose(got1, ref[:, 0], rtol=1e-12, atol=1e-14)
+
+
 def test_spectral_rejects_non_psd_matrix() -> None:
     with pytest.raises(MethodError, match="not positive semi-definite"):
         Spectral.from_kernel(np.array([[1.0, 2.0], [2.0, 1.0]]))
