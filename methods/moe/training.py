@@ -19,8 +19,12 @@ from enginebench.methods.moe.warmstart import lstsq_coefficients, warm_start
 from enginebench.methods.numerics.device import cpu_threads, resolve_device
 
 
-def fit_mixture(train: Samples, params: Mapping[str, Any], o: Mapping[str, Any], rng: np.random.Generator) -> MoEFitted:
-    """Prepare the training samples, start every expert at the least-squares model, train, and pack the result."""
+def fit_mixture(
+    train: Samples, params: Mapping[str, Any], o: Mapping[str, Any], rng: np.random.Generator, fused: bool = True,
+) -> MoEFitted:
+    """Prepare the training samples, start every expert at the least-squares model, train, and pack the result.
+
+    ``fused=False`` trains on the former per-step loop (``_train``'s reference path, for benchmarks)."""
     hp = resolve_params(params)
     p = prepare(train, o)
     sign, d_scale, V, X = p.sign, p.stats["d_scale"], p.V, p.X
@@ -44,7 +48,8 @@ def fit_mixture(train: Samples, params: Mapping[str, Any], o: Mapping[str, Any],
                     "(quasi-LPV) model is not supported: set scheduler_state=False or sim_weight=0"
                 )
             shoot = _Shooting(p.Us, p.Z, p.T, o["shooting_window"], p.si, p.ei, d_scale)
-        history = _train(net, V, X, p.D, hp, o, gen, device, dtype, shoot)
+        history = _train(net, V, X, p.D, hp, o, gen, device, dtype, shoot, fused=fused,
+                         compile=bool(o.get("compile", True)))
     if o["clip_schedulers"]:
         net.v_lo.copy_(torch.as_tensor(V.min(0), dtype=dtype))
         net.v_hi.copy_(torch.as_tensor(V.max(0), dtype=dtype))
@@ -85,22 +90,55 @@ class _Shooting:
         return U, H, Z
 
     def loss(self, net: MixtureOfExperts, o: dict[str, Any], U: torch.Tensor, H: torch.Tensor, Z: torch.Tensor,
-             fused: bool = True) -> torch.Tensor:
+             fused: bool = True, d_scale: torch.Tensor | None = None) -> torch.Tensor:
         """Mean squared simulation error (standardised units) of windows ``U``, ``H``, ``Z``
-        (``fused``: ``_Sim``'s one-network-call path; False its reference path)."""
+        (``fused``: ``_Sim``'s one-network-call path; False its reference path). ``d_scale``:
+        the derivative scale as a tensor of Z's dtype and device (made here when None)."""
         inf = torch.full((Z.shape[-1],), torch.inf, dtype=Z.dtype, device=Z.device)
+        if d_scale is None:
+            d_scale = torch.as_tensor(self.d_scale, dtype=Z.dtype, device=Z.device)
         sim = _Sim(
-            options=o, n_experts=net.n_experts, net=net, U=U, H=H, lo=-inf, hi=inf,
-            d_scale=torch.as_tensor(self.d_scale, dtype=Z.dtype, device=Z.device), si=self.si, ei=self.ei,
-            record_gate=False, fused=fused,
+            options=o, n_experts=net.n_experts, net=net, U=U, H=H, lo=-inf, hi=inf, d_scale=d_scale,
+            si=self.si, ei=self.ei, record_gate=False, fused=fused,
         )
         return ((sim.rollout(Z[:, 0]) - Z) ** 2).mean()
+
+
+COMPILE_MIN_STEPS = 20_000
+"""Gradient steps (epochs x minibatches) from which ``compile=True`` compiles the step: torch.compile
+takes about a minute on two busy cores and pays back only over long fits (see docs/benchmarks.md)."""
+
+
+def step_loss(
+    net: MixtureOfExperts, v: torch.Tensor, x: torch.Tensor, d: torch.Tensor, beta: torch.Tensor,
+    competitive: str, windows: tuple[torch.Tensor, ...] | None, sim_weight: torch.Tensor,
+    o: dict[str, Any], shoot: _Shooting | None, d_scale: torch.Tensor | None, fused: bool = True,
+) -> torch.Tensor:
+    """One minibatch's loss: seed 003's loss of rows (v, x, d) with ``beta`` = (beta1, beta2), plus
+    ``sim_weight`` times the simulation error of ``windows`` = (U, H, Z) when given."""
+    f, alpha = net(v, x)
+    loss = moe_loss(f, alpha, d, beta[0], beta[1], competitive)
+    if windows is not None and shoot is not None:
+        loss = loss + sim_weight * shoot.loss(net, o, *windows, fused=fused, d_scale=d_scale)
+    return loss
+
+
+_compiled: dict[str, Any] = {}
+
+
+def compiled_step_loss() -> Any:
+    """``step_loss`` through torch.compile (made once per process, so the grid's fits share its
+    compiled graphs), or None where torch.compile is missing."""
+    if "fn" not in _compiled:
+        compile_fn = getattr(torch, "compile", None)
+        _compiled["fn"] = None if compile_fn is None else compile_fn(step_loss)
+    return _compiled["fn"]
 
 
 def _train(
     net: MixtureOfExperts, V: np.ndarray, X: np.ndarray, D: np.ndarray, hp: dict[str, Any], o: dict[str, Any],
     gen: torch.Generator, device: torch.device, dtype: torch.dtype, shoot: _Shooting | None = None,
-    fused: bool = True,
+    fused: bool = True, compile: bool = False,
 ) -> list[float]:
     """Adam on seed 003's loss with shuffled minibatches; returns the mean loss per epoch.
 
@@ -113,11 +151,20 @@ def _train(
     tensors that every step slices (no per-step gathers) and simulates windows on
     ``_Sim``'s fused path; the minibatches, their order and the random draws are the same
     as with ``fused=False`` (the former loop, kept as the reference for tests and benchmarks).
+    ``compile`` runs each step's loss through torch.compile when the fit has at least
+    ``COMPILE_MIN_STEPS`` steps (not bitwise equal to eager: the compiled kernels sum in another
+    order); where torch.compile is missing or fails, the step runs eagerly.
     """
     Vt, Xt, Dt = (torch.as_tensor(a, dtype=dtype, device=device) for a in (V, X, D))
     opt = torch.optim.Adam(net.parameters(), lr=hp["lr"])
     n, bs = len(Vt), int(o["batch_size"])
     n_steps = -(-n // bs)
+    beta = torch.tensor([hp["beta1"], hp["beta2"]], dtype=dtype, device=device)
+    sim_weight = torch.tensor(float(o["sim_weight"]), dtype=dtype, device=device)
+    dsc = None if shoot is None else torch.as_tensor(shoot.d_scale, dtype=dtype, device=device)
+    loss_fn = step_loss
+    if compile and fused and n_steps * hp["epochs"] >= COMPILE_MIN_STEPS:
+        loss_fn = compiled_step_loss() or step_loss
     history = []
     net.train()
     for _ in range(hp["epochs"]):
@@ -137,17 +184,24 @@ def _train(
             else:
                 idx = perm[a : a + bs]
                 v, x, d = Vt[idx], Xt[idx], Dt[idx]
-            f, alpha = net(v, x)
-            loss = moe_loss(f, alpha, d, hp["beta1"], hp["beta2"], o["competitive"])
+            windows = None
             if shoot is not None:
                 lo, hi = step * per, min((step + 1) * per, len(Zw))
                 if hi > lo:
                     if fused:
-                        Ub, Hb, Zb = Uw[lo:hi], Hw[lo:hi], Zw[lo:hi]
+                        windows = (Uw[lo:hi], Hw[lo:hi], Zw[lo:hi])
                     else:
                         w = wperm[lo:hi]
-                        Ub, Hb, Zb = Uw[w], Hw[w], Zw[w]
-                    loss = loss + o["sim_weight"] * shoot.loss(net, o, Ub, Hb, Zb, fused)
+                        windows = (Uw[w], Hw[w], Zw[w])
+            args = (net, v, x, d, beta, o["competitive"], windows, sim_weight, o, shoot, dsc, fused)
+            if loss_fn is step_loss:
+                loss = step_loss(*args)
+            else:
+                try:
+                    loss = loss_fn(*args)
+                except Exception:  # noqa: BLE001 - torch.compile is an optimisation: without a working compiler, eager
+                    loss_fn = step_loss
+                    loss = step_loss(*args)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
