@@ -65,38 +65,29 @@ Every error is a one-line :class:`SpecError` (the spec, see
 :mod:`enginebench.datasets.import_spec`) or :class:`DataError` (a data file) whose message
 starts with the path of the file at fault; see :mod:`enginebench.datasets.validate` for
 the checks on values and time stamps.
+
+This module assembles the records into a Dataset (units, notes, segment ids, time zones,
+metadata); reading and parsing each file (CSV and Parquet readers, header checks) is
+:mod:`enginebench.datasets.readers`.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import os
-import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from enginebench.datasets.column_notes import SideColumn, side_column_notes
 from enginebench.datasets.dataset import SEGMENT, Dataset
-from enginebench.datasets.import_spec import (  # noqa: F401 - re-exported: the spec's public names
-    ALLOWED_KEYS,
-    ImportSpec,
-    RecordSpec,
-    load_spec,
-    one_line,
-    spec_from_dict,
-)
+from enginebench.datasets.import_spec import ALLOWED_KEYS, ImportSpec, RecordSpec, load_spec, one_line, spec_from_dict
+from enginebench.datasets.readers import FileTable, FileUse, file_uses, read_file, too_few_rows
 from enginebench.datasets.schema import Column, Schema
 from enginebench.datasets.validate import (
-    DATETIME,
     NUMERIC_ROLES,
-    check_columns,
     check_not_constant,
     column_hint,
     show_cell,
@@ -104,236 +95,9 @@ from enginebench.datasets.validate import (
 )
 from enginebench.errors import DataError
 
-CSV_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
-PARQUET_SUFFIXES = (".parquet", ".pq")
-
-
-# -- how each file is read ---------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Use:
-    """One way a file is read: as a whole record of ``files`` (``record`` None) or as one [records] table."""
-
-    file: Path
-    record: RecordSpec | None = None
-
-    def time(self, spec: ImportSpec) -> str | None:
-        return spec.time if self.record is None else self.record.time
-
-    def columns(self, spec: ImportSpec) -> dict[str, str]:
-        """Declared column -> file column."""
-        names = spec.schema.names()
-        return {c: c for c in names} if self.record is None else dict(self.record.columns)
-
-    def required(self, spec: ImportSpec) -> dict[str, str]:
-        """File column -> what it is, for messages about a column the file lacks."""
-        time = self.time(spec)
-        if self.record is None:
-            req = {time: "time column"} if time is not None else {}
-            if spec.group_key is not None:
-                req[spec.group_key] = "segment column" if spec.segment is not None else "record column"
-            for c in spec.schema.names():
-                req.setdefault(c, "declared column")
-            return req
-        what = f"[records.{self.record.name}] column"
-        req = {time: f"[records.{self.record.name}] time column"} if time is not None else {}
-        for col in self.record.columns.values():
-            req.setdefault(col, what)
-        return req
-
-    def text_columns(self, spec: ImportSpec) -> list[str]:
-        """File columns read as text: datetime stamps, group columns and the record/segment column."""
-        cols = self.columns(spec)
-        text = [cols[c.name] for c in spec.schema.columns if c.role == "group"]
-        time = self.time(spec)
-        if spec.time_unit == DATETIME and time is not None:
-            text.append(time)
-        if self.record is None and spec.group_key is not None:
-            text.append(spec.group_key)
-        return text
-
-
-def _uses(spec: ImportSpec) -> dict[Path, list[_Use]]:
-    """Every file with the ways it is read, in spec order (files first, then [records] tables)."""
-    out: dict[Path, list[_Use]] = {}
-    for f in spec.files:
-        out.setdefault(f, []).append(_Use(f))
-    for rec in spec.records:
-        out.setdefault(rec.file, []).append(_Use(rec.file, rec))
-    return out
-
-
-# -- reading one file --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Table:
-    """A whole file: cells by position (``c0``, ``c1``, ...), the header, and each row's line number."""
-
-    raw: pd.DataFrame
-    header: list[str]
-    lines: np.ndarray
-    word: str
-    units: dict[str, str]
-    first_texts: list[str] | None = None
-    pos: dict[str, int] = field(default_factory=dict)
-
-    def column(self, name: str) -> pd.Series:
-        return self.raw[f"c{self.pos[name]}"]
-
-
-def _too_few_rows(file: Path, n: int, word: str, record: str | None = None) -> None:
-    """A file (or a record of a wide file, ``record``) needs at least 2 data rows."""
-    if n >= 2:
-        return
-    if record is not None:
-        has = "has no data rows" if n == 0 else f"has only 1 data row ({word} {2 if word == 'line' else 1})"
-        raise DataError(f"{file}: record {record!r} {has}; a record needs at least 2 data rows")
-    if n == 0:
-        what = "has a header but no data rows" if word == "line" else "has no data rows"
-        raise DataError(f"{file}: the file {what}; a file needs at least 2 data rows")
-    first = 2 if word == "line" else 1
-    raise DataError(f"{file}: only 1 data row ({word} {first}); a file needs at least 2 data rows to form a segment")
-
-
-def _check_header(file: Path, header: list[str], required: dict[str, str], delim: str | None) -> dict[str, int]:
-    """Every required column is in the header, once; returns each name's first position."""
-    check_columns(header, required, source=str(file), delimiter=delim)
-    where = f"{file}, line 1:" if delim is not None else f"{file}:"
-    for name in required:
-        at = [i + 1 for i, h in enumerate(header) if h == name]
-        if len(at) > 1:
-            raise DataError(f"{where} column {name!r} appears {len(at)} times in the header (fields {at}); rename all but one")
-    return {h: i for i, h in reversed(list(enumerate(header)))}
-
-
-def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str]) -> _Table:
-    delim = spec.delimiter_for(file)
-    try:
-        with open(file, encoding="utf-8-sig", newline="") as fh:
-            first = fh.readline()
-            second = fh.readline()
-            rest_blank = not first.strip() and not second.strip() and not fh.read(1 << 16).strip()
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
-    if not first.strip():
-        if rest_blank:
-            raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
-        raise DataError(f"{file}, line 1: blank; the header must be on line 1")
-    header = [h.strip() for h in next(csv.reader([first.rstrip("\r\n")], delimiter=delim))]
-    pos = _check_header(file, header, required, delim)
-    first_texts = None
-    if second.strip():
-        first_texts = [f.strip() for f in next(csv.reader([second.rstrip("\r\n")], delimiter=delim))]
-    text_pos = sorted({pos[c] for c in text_cols})
-    raw = _parse_csv(file, delim, len(header), text_pos)
-    # A float column that overflowed holds inf where the file holds text such as 1e309: re-read it
-    # as text so that the error quotes the value as written.
-    overflow = [
-        pos[c]
-        for c in required
-        if pos[c] not in text_pos
-        and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
-        and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
-    ]
-    if overflow:
-        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)))
-    return _Table(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
-
-
-def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int]) -> pd.DataFrame:
-    """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
-
-    Columns holding anything that is not a number come back as text, which
-    :func:`validate.parse_numbers` then reports with its line.
-    """
-    try:
-        return pd.read_csv(
-            file,
-            sep=delim,
-            header=0,
-            names=[f"c{i}" for i in range(n_fields)],
-            index_col=False,
-            dtype={f"c{i}": str for i in text_pos},
-            skip_blank_lines=False,
-            encoding="utf-8-sig",
-        )
-    except pd.errors.ParserError as exc:
-        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
-        if m:
-            raise DataError(
-                f"{file}, line {m.group(2)}: {m.group(3)} fields where the header has {m.group(1)} "
-                "(a stray delimiter or a decimal comma?); fix the row"
-            ) from exc
-        raise DataError(f"{file}: cannot parse the CSV ({one_line(str(exc))}); check delimiter and quoting") from exc
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
-
-
-def _recorded_units(schema: pa.Schema) -> dict[str, str]:
-    """Units a Parquet file records: enginebench metadata, else an Arrow field's unit metadata."""
-    units: dict[str, str] = {}
-    raw = (schema.metadata or {}).get(b"enginebench")
-    if raw is not None:
-        try:
-            units = {k: v.get("unit", "") for k, v in json.loads(raw).get("schema", {}).items()}
-        except (ValueError, AttributeError):
-            units = {}
-    for fld in schema:
-        meta = fld.metadata or {}
-        for key in (b"unit", b"units"):
-            if key in meta:
-                units[fld.name] = meta[key].decode("utf-8", "replace")
-    return {k: v for k, v in units.items() if v}
-
-
-def _read_parquet(file: Path, spec: ImportSpec, required: dict[str, str], times: list[str]) -> _Table:
-    try:
-        schema = pq.read_schema(file)
-    except (pa.ArrowInvalid, OSError) as exc:
-        raise DataError(f"{file}: not a Parquet file ({one_line(str(exc))}); give CSV or Parquet files") from exc
-    header = list(schema.names)
-    pos = _check_header(file, header, required, None)
-    try:
-        frame = pq.read_table(file).to_pandas()
-    except (pa.ArrowException, OSError) as exc:
-        raise DataError(
-            f"{file}: cannot read the Parquet data ({one_line(str(exc))}); the file may be damaged"
-        ) from exc
-    frame.columns = [f"c{i}" for i in range(len(header))]
-    _too_few_rows(file, len(frame), "row")
-    for t in times:
-        if spec.time_unit != DATETIME and pd.api.types.is_datetime64_any_dtype(frame[f"c{pos[t]}"].dtype):
-            raise DataError(
-                f"{file}, column {t!r}: holds timestamps but time_unit = {spec.time_unit!r}; "
-                'set time_unit = "datetime"'
-            )
-    return _Table(frame, header, np.arange(len(frame)) + 1, "row", _recorded_units(schema), None, pos)
-
-
-def _read(file: Path, spec: ImportSpec, uses: list[_Use]) -> _Table:
-    """Read ``file`` once, with every column the ways it is read (``uses``) need."""
-    rec = uses[0].record
-    if not file.exists():
-        named = f"named in [records.{rec.name}]" if rec is not None else "listed in files"
-        raise DataError(f"{file}: file not found ({named} of {spec.path}; paths are relative to the spec)")
-    if file.is_dir():
-        raise DataError(f"{file}: is a folder; {'list data files in files' if rec is None else 'name a data file'}")
-    required: dict[str, str] = {}
-    text: list[str] = []
-    for use in uses:
-        for k, v in use.required(spec).items():
-            required.setdefault(k, v)
-        text += use.text_columns(spec)
-    suffix = file.suffix.lower()
-    if suffix in PARQUET_SUFFIXES:
-        times = [t for t in (u.time(spec) for u in uses) if t is not None]
-        return _read_parquet(file, spec, required, times)
-    if suffix in CSV_SUFFIXES:
-        if file.stat().st_size == 0:
-            raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
-        return _read_csv(file, spec, required, text)
-    raise DataError(
-        f"{file}: unsupported file type {suffix or '(none)'!r}; give CSV ({', '.join(CSV_SUFFIXES)}) "
-        f"or Parquet ({', '.join(PARQUET_SUFFIXES)}) files"
-    )
+__all__ = ["import_spec", "import_table",
+           # the spec's public names, still importable from here
+           "ALLOWED_KEYS", "ImportSpec", "RecordSpec", "load_spec", "one_line", "spec_from_dict"]
 
 
 # -- one record source: a file of files, or a [records] table ---------------------------------------
@@ -377,7 +141,7 @@ def _first_row_only(file: Path, frame: pd.DataFrame, names: list[str], shown: di
             )
 
 
-def _source_frame(use: _Use, table: _Table, spec: ImportSpec) -> tuple[pd.DataFrame, np.ndarray, dict[str, str]]:
+def _source_frame(use: FileUse, table: FileTable, spec: ImportSpec) -> tuple[pd.DataFrame, np.ndarray, dict[str, str]]:
     """The rows of one record source: SEGMENT, the time column if any and the declared columns (logical names)."""
     file, time = use.file, use.time(spec)
     mapping = use.columns(spec)
@@ -397,12 +161,12 @@ def _source_frame(use: _Use, table: _Table, spec: ImportSpec) -> tuple[pd.DataFr
     frame = frame.iloc[:n].reset_index(drop=True)
     lines = table.lines[:n]
     if use.record is None:
-        _too_few_rows(file, n, table.word)
+        too_few_rows(file, n, table.word)
         ids: Any = file.stem
         if key is not None:
             ids = _record_ids(file, key, frame[key], lines, table.word, contiguous=spec.record is not None)
     else:
-        _too_few_rows(file, n, table.word, record=use.record.name)
+        too_few_rows(file, n, table.word, record=use.record.name)
         ids = use.record.name
     numeric = [c.name for c in spec.schema.columns if c.role in NUMERIC_ROLES]
     _first_row_only(file, frame, numeric, mapping, lines, table.word)
@@ -411,7 +175,7 @@ def _source_frame(use: _Use, table: _Table, spec: ImportSpec) -> tuple[pd.DataFr
     return frame, lines, shown
 
 
-def _side_notes(file: Path, table: _Table, uses: list[_Use], spec: ImportSpec) -> list[str]:
+def _side_notes(file: Path, table: FileTable, uses: list[FileUse], spec: ImportSpec) -> list[str]:
     """Notes on the columns of ``file`` that no record reads."""
     read = {table.pos[c] for use in uses for c in use.required(spec)}
     side = [
@@ -464,11 +228,11 @@ def import_spec(spec: ImportSpec) -> Dataset:
     frames: list[pd.DataFrame] = []
     dropped: list[tuple[str, int]] = []
     notes: list[str] = []
-    plan = _uses(spec)
+    plan = file_uses(spec)
     n_sources = sum(len(u) for u in plan.values())
     headers: list[str] = []
     for file, uses in plan.items():
-        table = _read(file, spec, uses)
+        table = read_file(file, spec, uses)
         for name, rec in table.units.items():
             logical = [c for u in uses for c, col in u.columns(spec).items() if col == name]
             for c in logical:

@@ -1,0 +1,259 @@
+"""Reading the files of an import spec: CSV and Parquet readers, header checks, recorded units.
+
+Each data file named by a spec (``files`` or a ``[records]`` table) is read once, with
+every column the ways it is read need (``read_file``): its header checked against the
+required columns, its cells by position, each row's line number and the units a Parquet
+file records. ``importer`` assembles the records into a Dataset; kept apart so that
+parsing a file and building the dataset are read and changed separately.
+
+Every error is a one-line :class:`DataError` whose message starts with the path of the
+file at fault.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from enginebench.datasets.import_spec import ImportSpec, RecordSpec, one_line
+from enginebench.datasets.validate import DATETIME, check_columns
+from enginebench.errors import DataError
+
+CSV_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
+PARQUET_SUFFIXES = (".parquet", ".pq")
+
+
+# -- how each file is read ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class FileUse:
+    """One way a file is read: as a whole record of ``files`` (``record`` None) or as one [records] table."""
+
+    file: Path
+    record: RecordSpec | None = None
+
+    def time(self, spec: ImportSpec) -> str | None:
+        return spec.time if self.record is None else self.record.time
+
+    def columns(self, spec: ImportSpec) -> dict[str, str]:
+        """Declared column -> file column."""
+        names = spec.schema.names()
+        return {c: c for c in names} if self.record is None else dict(self.record.columns)
+
+    def required(self, spec: ImportSpec) -> dict[str, str]:
+        """File column -> what it is, for messages about a column the file lacks."""
+        time = self.time(spec)
+        if self.record is None:
+            req = {time: "time column"} if time is not None else {}
+            if spec.group_key is not None:
+                req[spec.group_key] = "segment column" if spec.segment is not None else "record column"
+            for c in spec.schema.names():
+                req.setdefault(c, "declared column")
+            return req
+        what = f"[records.{self.record.name}] column"
+        req = {time: f"[records.{self.record.name}] time column"} if time is not None else {}
+        for col in self.record.columns.values():
+            req.setdefault(col, what)
+        return req
+
+    def text_columns(self, spec: ImportSpec) -> list[str]:
+        """File columns read as text: datetime stamps, group columns and the record/segment column."""
+        cols = self.columns(spec)
+        text = [cols[c.name] for c in spec.schema.columns if c.role == "group"]
+        time = self.time(spec)
+        if spec.time_unit == DATETIME and time is not None:
+            text.append(time)
+        if self.record is None and spec.group_key is not None:
+            text.append(spec.group_key)
+        return text
+
+
+def file_uses(spec: ImportSpec) -> dict[Path, list[FileUse]]:
+    """Every file with the ways it is read, in spec order (files first, then [records] tables)."""
+    out: dict[Path, list[FileUse]] = {}
+    for f in spec.files:
+        out.setdefault(f, []).append(FileUse(f))
+    for rec in spec.records:
+        out.setdefault(rec.file, []).append(FileUse(rec.file, rec))
+    return out
+
+
+# -- reading one file --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FileTable:
+    """A whole file: cells by position (``c0``, ``c1``, ...), the header, and each row's line number."""
+
+    raw: pd.DataFrame
+    header: list[str]
+    lines: np.ndarray
+    word: str
+    units: dict[str, str]
+    first_texts: list[str] | None = None
+    pos: dict[str, int] = field(default_factory=dict)
+
+    def column(self, name: str) -> pd.Series:
+        return self.raw[f"c{self.pos[name]}"]
+
+
+def too_few_rows(file: Path, n: int, word: str, record: str | None = None) -> None:
+    """A file (or a record of a wide file, ``record``) needs at least 2 data rows."""
+    if n >= 2:
+        return
+    if record is not None:
+        has = "has no data rows" if n == 0 else f"has only 1 data row ({word} {2 if word == 'line' else 1})"
+        raise DataError(f"{file}: record {record!r} {has}; a record needs at least 2 data rows")
+    if n == 0:
+        what = "has a header but no data rows" if word == "line" else "has no data rows"
+        raise DataError(f"{file}: the file {what}; a file needs at least 2 data rows")
+    first = 2 if word == "line" else 1
+    raise DataError(f"{file}: only 1 data row ({word} {first}); a file needs at least 2 data rows to form a segment")
+
+
+def _check_header(file: Path, header: list[str], required: dict[str, str], delim: str | None) -> dict[str, int]:
+    """Every required column is in the header, once; returns each name's first position."""
+    check_columns(header, required, source=str(file), delimiter=delim)
+    where = f"{file}, line 1:" if delim is not None else f"{file}:"
+    for name in required:
+        at = [i + 1 for i, h in enumerate(header) if h == name]
+        if len(at) > 1:
+            raise DataError(f"{where} column {name!r} appears {len(at)} times in the header (fields {at}); rename all but one")
+    return {h: i for i, h in reversed(list(enumerate(header)))}
+
+
+def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str]) -> FileTable:
+    delim = spec.delimiter_for(file)
+    try:
+        with open(file, encoding="utf-8-sig", newline="") as fh:
+            first = fh.readline()
+            second = fh.readline()
+            rest_blank = not first.strip() and not second.strip() and not fh.read(1 << 16).strip()
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
+    if not first.strip():
+        if rest_blank:
+            raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
+        raise DataError(f"{file}, line 1: blank; the header must be on line 1")
+    header = [h.strip() for h in next(csv.reader([first.rstrip("\r\n")], delimiter=delim))]
+    pos = _check_header(file, header, required, delim)
+    first_texts = None
+    if second.strip():
+        first_texts = [f.strip() for f in next(csv.reader([second.rstrip("\r\n")], delimiter=delim))]
+    text_pos = sorted({pos[c] for c in text_cols})
+    raw = _parse_csv(file, delim, len(header), text_pos)
+    # A float column that overflowed holds inf where the file holds text such as 1e309: re-read it
+    # as text so that the error quotes the value as written.
+    overflow = [
+        pos[c]
+        for c in required
+        if pos[c] not in text_pos
+        and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
+        and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
+    ]
+    if overflow:
+        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)))
+    return FileTable(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
+
+
+def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int]) -> pd.DataFrame:
+    """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
+
+    Columns holding anything that is not a number come back as text, which
+    :func:`validate.parse_numbers` then reports with its line.
+    """
+    try:
+        return pd.read_csv(
+            file,
+            sep=delim,
+            header=0,
+            names=[f"c{i}" for i in range(n_fields)],
+            index_col=False,
+            dtype={f"c{i}": str for i in text_pos},
+            skip_blank_lines=False,
+            encoding="utf-8-sig",
+        )
+    except pd.errors.ParserError as exc:
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
+        if m:
+            raise DataError(
+                f"{file}, line {m.group(2)}: {m.group(3)} fields where the header has {m.group(1)} "
+                "(a stray delimiter or a decimal comma?); fix the row"
+            ) from exc
+        raise DataError(f"{file}: cannot parse the CSV ({one_line(str(exc))}); check delimiter and quoting") from exc
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
+
+
+def _recorded_units(schema: pa.Schema) -> dict[str, str]:
+    """Units a Parquet file records: enginebench metadata, else an Arrow field's unit metadata."""
+    units: dict[str, str] = {}
+    raw = (schema.metadata or {}).get(b"enginebench")
+    if raw is not None:
+        try:
+            units = {k: v.get("unit", "") for k, v in json.loads(raw).get("schema", {}).items()}
+        except (ValueError, AttributeError):
+            units = {}
+    for fld in schema:
+        meta = fld.metadata or {}
+        for key in (b"unit", b"units"):
+            if key in meta:
+                units[fld.name] = meta[key].decode("utf-8", "replace")
+    return {k: v for k, v in units.items() if v}
+
+
+def _read_parquet(file: Path, spec: ImportSpec, required: dict[str, str], times: list[str]) -> FileTable:
+    try:
+        schema = pq.read_schema(file)
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise DataError(f"{file}: not a Parquet file ({one_line(str(exc))}); give CSV or Parquet files") from exc
+    header = list(schema.names)
+    pos = _check_header(file, header, required, None)
+    try:
+        frame = pq.read_table(file).to_pandas()
+    except (pa.ArrowException, OSError) as exc:
+        raise DataError(
+            f"{file}: cannot read the Parquet data ({one_line(str(exc))}); the file may be damaged"
+        ) from exc
+    frame.columns = [f"c{i}" for i in range(len(header))]
+    too_few_rows(file, len(frame), "row")
+    for t in times:
+        if spec.time_unit != DATETIME and pd.api.types.is_datetime64_any_dtype(frame[f"c{pos[t]}"].dtype):
+            raise DataError(
+                f"{file}, column {t!r}: holds timestamps but time_unit = {spec.time_unit!r}; "
+                'set time_unit = "datetime"'
+            )
+    return FileTable(frame, header, np.arange(len(frame)) + 1, "row", _recorded_units(schema), None, pos)
+
+
+def read_file(file: Path, spec: ImportSpec, uses: list[FileUse]) -> FileTable:
+    """Read ``file`` once, with every column the ways it is read (``uses``) need."""
+    rec = uses[0].record
+    if not file.exists():
+        named = f"named in [records.{rec.name}]" if rec is not None else "listed in files"
+        raise DataError(f"{file}: file not found ({named} of {spec.path}; paths are relative to the spec)")
+    if file.is_dir():
+        raise DataError(f"{file}: is a folder; {'list data files in files' if rec is None else 'name a data file'}")
+    required: dict[str, str] = {}
+    text: list[str] = []
+    for use in uses:
+        for k, v in use.required(spec).items():
+            required.setdefault(k, v)
+        text += use.text_columns(spec)
+    suffix = file.suffix.lower()
+    if suffix in PARQUET_SUFFIXES:
+        times = [t for t in (u.time(spec) for u in uses) if t is not None]
+        return _read_parquet(file, spec, required, times)
+    if suffix in CSV_SUFFIXES:
+        if file.stat().st_size == 0:
+            raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
+        return _read_csv(file, spec, required, text)
+    raise DataError(
+        f"{file}: unsupported file type {suffix or '(none)'!r}; give CSV ({', '.join(CSV_SUFFIXES)}) "
+        f"or Parquet ({', '.join(PARQUET_SUFFIXES)}) files"
+    )
