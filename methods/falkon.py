@@ -333,6 +333,35 @@ def _targets(y: Any, n: int) -> np.ndarray:
     return arr
 
 
+@dataclass(frozen=True)
+class SolverSettings:
+    """How FALKON iterates, where it computes and how it streams: the keyword settings that
+    ``FalkonSolver`` and ``falkon_path`` share (declared once here, passed to both as keywords).
+
+    ``checked()`` validates them, in this order, each problem one MethodError naming the
+    parameter, and resolves the device.
+    """
+
+    maxiter: int = 30
+    tol: float = 1e-5
+    block_rows: int | None = None
+    device: str | torch.device = "auto"
+    dtype: torch.dtype = torch.float64
+    block_mib: float = DEFAULT_BLOCK_MIB
+    cache_mib: float = DEFAULT_CACHE_MIB
+
+    def checked(self) -> "SolverSettings":
+        return SolverSettings(
+            maxiter=_count(self.maxiter, "maxiter"),
+            tol=_non_negative(self.tol, "tol", "a finite number >= 0 (0 = run all maxiter iterations)"),
+            block_rows=None if self.block_rows is None else _count(self.block_rows, "block_rows"),
+            device=resolve_device(self.device, _WHO),
+            dtype=_check_dtype(self.dtype),
+            block_mib=_positive(self.block_mib, "block_mib"),
+            cache_mib=_non_negative(self.cache_mib, "cache_mib", "a finite number >= 0 (0 = always stream)"),
+        )
+
+
 class FalkonSolver:
     """Gaussian-kernel ridge regression for large n by FALKON (see the module docstring).
 
@@ -346,31 +375,18 @@ class FalkonSolver:
     ``cache_mib`` (0 = always stream). After
     ``fit``: ``centres_`` (m, d) float64, ``coef_`` (m, k) float64 and ``info`` (CG
     iterations, passes over the data, relative residuals, device, block layout).
+    ``settings``: the keywords of ``SolverSettings`` (maxiter, tol, block_rows, device,
+    dtype, block_mib, cache_mib), kept checked as attributes of the same names.
     """
 
-    def __init__(
-        self,
-        gamma: float,
-        lam: float,
-        centres: int = 2000,
-        maxiter: int = 30,
-        tol: float = 1e-5,
-        block_rows: int | None = None,
-        device: str = "auto",
-        dtype: torch.dtype = torch.float64,
-        block_mib: float = DEFAULT_BLOCK_MIB,
-        cache_mib: float = DEFAULT_CACHE_MIB,
-    ) -> None:
+    def __init__(self, gamma: float, lam: float, centres: int = 2000, **settings: Any) -> None:
         self.gamma = _positive(gamma, "gamma")
         self.lam = _positive(lam, "lam")
         self.centres = _count(centres, "centres")
-        self.maxiter = _count(maxiter, "maxiter")
-        self.tol = _non_negative(tol, "tol", "a finite number >= 0 (0 = run all maxiter iterations)")
-        self.block_rows = None if block_rows is None else _count(block_rows, "block_rows")
-        self.device = resolve_device(device, _WHO)
-        self.dtype = _check_dtype(dtype)
-        self.block_mib = _positive(block_mib, "block_mib")
-        self.cache_mib = _non_negative(cache_mib, "cache_mib", "a finite number >= 0 (0 = always stream)")
+        checked = SolverSettings(**settings).checked()
+        self.maxiter, self.tol, self.block_rows = checked.maxiter, checked.tol, checked.block_rows
+        self.device, self.dtype = checked.device, checked.dtype
+        self.block_mib, self.cache_mib = checked.block_mib, checked.cache_mib
         self.info: dict[str, Any] = {}
 
     def fit(self, X: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> "FalkonSolver":
@@ -442,14 +458,7 @@ def falkon_path(
     lambdas: np.ndarray,
     centres: int,
     rng: np.random.Generator,
-    *,
-    maxiter: int = 30,
-    tol: float = 1e-5,
-    block_rows: int | None = None,
-    device: str = "auto",
-    dtype: torch.dtype = torch.float64,
-    block_mib: float = DEFAULT_BLOCK_MIB,
-    cache_mib: float = DEFAULT_CACHE_MIB,
+    **settings: Any,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Predictions at ``X_eval`` for every lambda, shape (L, rows, k), and the solver's info.
 
@@ -457,7 +466,8 @@ def falkon_path(
     K_nm^T K_nm to L*k columns at once), so the path costs about one solve plus one
     m x m Cholesky factorisation per lambda (and L m^2 floats of memory for the factors).
     Equal to ``FalkonSolver(gamma, lam, ...).fit(X, y, rng).predict(X_eval)`` per lambda
-    given the same rng state.
+    given the same rng state. ``settings``: the keywords of ``SolverSettings``, as for
+    ``FalkonSolver``.
     """
     lams = np.atleast_1d(np.asarray(lambdas, dtype=np.float64))
     if lams.ndim != 1 or lams.size == 0:
@@ -465,8 +475,8 @@ def falkon_path(
     for lam in lams:
         _positive(lam, "lambdas")
     gamma = _positive(gamma, "gamma")
-    centres, maxiter = _count(centres, "centres"), _count(maxiter, "maxiter")
-    dev, dtype = resolve_device(device, _WHO), _check_dtype(dtype)
+    centres = _count(centres, "centres")
+    s = SolverSettings(**settings).checked()
     X = _features(X, "training features X")
     X_eval = _features(X_eval, "features to predict X_eval")
     if X_eval.shape[1] != X.shape[1]:
@@ -474,19 +484,17 @@ def falkon_path(
             f"{_WHO}: X_eval has {X_eval.shape[1]} feature columns but X has {X.shape[1]}; give the same features"
         )
     Y = _targets(y, X.shape[0])
-    tol = _non_negative(tol, "tol", "a finite number >= 0 (0 = run all maxiter iterations)")
-    cache_mib = _non_negative(cache_mib, "cache_mib", "a finite number >= 0 (0 = always stream)")
-    block_mib = _positive(block_mib, "block_mib")
-    prob = _prepare(X, centres, gamma, dtype, dev, block_rows, block_mib, cache_mib, rng)
-    betas, info = _solve(prob, torch.as_tensor(Y, device=dev), lams, maxiter, tol)
-    pred = _predict(X_eval, X[prob.centre_rows], betas.cpu().numpy(), gamma, dtype, dev, block_rows, block_mib)
+    prob = _prepare(X, centres, gamma, s.dtype, s.device, s.block_rows, s.block_mib, s.cache_mib, rng)
+    betas, info = _solve(prob, torch.as_tensor(Y, device=s.device), lams, s.maxiter, s.tol)
+    pred = _predict(X_eval, X[prob.centre_rows], betas.cpu().numpy(), gamma, s.dtype, s.device, s.block_rows,
+                    s.block_mib)
     residuals = info["residuals"]
     out_info = {
         "iterations": info["iterations"],
         "passes": info["passes"],
         "residual": residuals.max(axis=1).tolist(),
-        "converged": (residuals.max(axis=1) <= tol).tolist(),
+        "converged": (residuals.max(axis=1) <= s.tol).tolist(),
         "centres": int(prob.blocks.m),
-        "device": str(dev),
+        "device": str(s.device),
     }
     return pred, out_info
