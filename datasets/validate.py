@@ -146,10 +146,10 @@ def parse_numbers(
     return x
 
 
-def _require_finite(
-    x: np.ndarray, raw: pd.Series, *, source: str, column: str, lines: np.ndarray, word: str, what: str = "value"
+def _require_present(
+    missing: np.ndarray, *, source: str, column: str, lines: np.ndarray, word: str, what: str
 ) -> None:
-    missing = np.isnan(x)
+    """No cell ``missing``: a column missing everywhere, else the first missing row (a ``what``), is a DataError."""
     if missing.all():
         raise DataError(
             f"{source}, column {column!r}: every value is missing; remove the column from [columns] or fill it"
@@ -157,6 +157,12 @@ def _require_finite(
     if missing.any():
         i = _first(missing, lines)
         raise DataError(f"{source}, column {column!r}, {word} {lines[i]}: missing {what}; fill it or remove the row")
+
+
+def _require_finite(
+    x: np.ndarray, raw: pd.Series, *, source: str, column: str, lines: np.ndarray, word: str, what: str = "value"
+) -> None:
+    _require_present(np.isnan(x), source=source, column=column, lines=lines, word=word, what=what)
     inf = np.isinf(x)
     if inf.any():
         i = _first(inf, lines)
@@ -184,14 +190,7 @@ def _labels(
     raw: pd.Series, *, source: str, column: str, lines: np.ndarray, word: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """Group keys as (codes, text labels); a missing key raises DataError."""
-    missing = raw.isna().to_numpy()
-    if missing.all():
-        raise DataError(
-            f"{source}, column {column!r}: every value is missing; remove the column from [columns] or fill it"
-        )
-    if missing.any():
-        i = _first(missing, lines)
-        raise DataError(f"{source}, column {column!r}, {word} {lines[i]}: missing key; fill it or remove the row")
+    _require_present(raw.isna().to_numpy(), source=source, column=column, lines=lines, word=word, what="key")
     return _factorize_text(raw)
 
 
