@@ -40,7 +40,7 @@ recent measured state; without one, from y0 at row 0.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Sequence
 
 import numpy as np
@@ -84,8 +84,28 @@ def span(name: str, default: Any, meaning: str, **kw: Any) -> Field:
 """A training segment needs at least this many rows to be differentiated."""
 
 
+@dataclass(kw_only=True)
+class Scaling:
+    """The training standardisation of states and controls, and the envelope of the standardised state.
+
+    Shared by the grid-independent preparation (``_Prepared``) and the fit it becomes
+    (``SINDyFit``); keyword-only, so the subclasses keep their own fields' positions.
+    """
+
+    state_mean: np.ndarray
+    state_std: np.ndarray
+    control_mean: np.ndarray
+    control_std: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def scaling(self) -> dict[str, np.ndarray]:
+        """These fields by name (to hand them on to another ``Scaling``)."""
+        return {f.name: getattr(self, f.name) for f in fields(Scaling)}
+
+
 @dataclass
-class SINDyFit:
+class SINDyFit(Scaling):
     """A fitted SINDy model and everything needed to simulate and explain it.
 
     All coefficients act on standardised signals, ``(v - mean) / std``, with time in
@@ -97,12 +117,6 @@ class SINDyFit:
     model: Any
     coef: np.ndarray
     powers: np.ndarray
-    state_mean: np.ndarray
-    state_std: np.ndarray
-    control_mean: np.ndarray
-    control_std: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
     time_scale: float
     params: dict[str, Any]
     state_names: tuple[str, ...]
@@ -122,19 +136,13 @@ class SINDyFit:
 
 
 @dataclass
-class _Prepared:
+class _Prepared(Scaling):
     """Standardised training trajectories and their derivatives (grid-independent)."""
 
     x: list[np.ndarray]
     u: list[np.ndarray] | None
     t: list[np.ndarray]
     x_dot: list[np.ndarray]
-    state_mean: np.ndarray
-    state_std: np.ndarray
-    control_mean: np.ndarray
-    control_std: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
     notes: list[str]
     derivative_rms: np.ndarray
 
@@ -455,8 +463,7 @@ class SINDy(Method):
                 "not a divergence); lower the threshold for a model with terms"
             )
         return SINDyFit(
-            model=model, coef=coef, powers=powers, state_mean=prep.state_mean, state_std=prep.state_std,
-            control_mean=prep.control_mean, control_std=prep.control_std, lower=prep.lower, upper=prep.upper,
+            model=model, coef=coef, powers=powers, **prep.scaling(),
             time_scale=float(self.options["time_scale"]), params=p, state_names=tuple(train.target_names),
             control_names=tuple(train.input_names), derivative=self.options["derivative"],
             derivative_alpha=self.derivative_alpha, notes=notes, threshold_scale=self.options["threshold_scale"],
