@@ -48,7 +48,7 @@ from enginebench.errors import MethodError
 from enginebench.declare import Declaration, whole
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.freerun import (ENVELOPE, Envelope, GivenOrders, Trajectory, check_prediction_inputs,
-                                         derived_orders, init_window, orders, padded_past, training_trajectories)
+                                         init_window, orders, padded_past, training_trajectories)
 
 NAME = "arx"
 DEFAULT_NK = (0, 1)
@@ -170,16 +170,9 @@ class ARX(GivenOrders, Method):
 
     def search_space(self, data: Samples) -> SearchSpace:
         """Tied order (na = nb) derived from the training data, or na and nb from the options; nk (0, 1) by default."""
-        given = self.given_orders
-        sizes = [len(s) for s in data.segments] or [0]
-        derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_order"]),
-                                 ORDER_BASE)
-        nk = given["nk"] if given["nk"] is not None else list(DEFAULT_NK)
-        if given["na"] is None and given["nb"] is None:
-            return {"order": np.array(derived), "nk": np.array(nk)}
-        na = given["na"] if given["na"] is not None else derived
-        nb = given["nb"] if given["nb"] is not None else derived
-        return {"na": np.array(na), "nb": np.array(nb), "nk": np.array(nk)}
+        nk = self.given_orders["nk"]
+        return {**self.order_space(data, int(self.options["max_order"]), ORDER_BASE, tied="order"),
+                "nk": np.array(nk if nk is not None else list(DEFAULT_NK))}
 
     @staticmethod
     def _orders_of(params: Params) -> tuple[int, int, int]:

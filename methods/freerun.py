@@ -151,6 +151,17 @@ class GivenOrders:
     def given_orders(self) -> dict[str, list[int] | None]:
         return {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
 
+    def order_space(self, data: Samples, cap: int, base: Sequence[int], tied: str) -> dict[str, np.ndarray]:
+        """The lag part of the search space: ``tied`` (na = nb) on the grid the training data carry
+        (``derived_orders`` up to ``cap`` from ``base``) unless na or nb is given; else na and nb,
+        each as given or on that grid."""
+        given = self.given_orders
+        sizes = [len(s) for s in data.segments] or [0]
+        derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), cap, base)
+        if given["na"] is None and given["nb"] is None:
+            return {tied: np.array(derived)}
+        return {key: np.array(given[key] if given[key] is not None else derived) for key in ("na", "nb")}
+
 
 def orders(name: str, default: object, meaning: str, low: int = 0, high: int | None = None, why: str = "",
            message: str = "", **kw: object) -> Field:

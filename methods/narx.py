@@ -54,8 +54,8 @@ from enginebench.errors import MethodError
 from enginebench.declare import Declaration, flag, whole
 from enginebench.declare import log_grid as grid
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
-from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, derived_orders, init_window,
-                                         orders, training_trajectories)
+from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
+                                         training_trajectories)
 from enginebench.methods.kernels import check_positive
 # the numerics; NARXFit and nystroem_ridge stay importable from here
 from enginebench.methods.narx_model import (KernelModel, NARXFit, Standardised, free_run, nystroem_ridge,
@@ -100,18 +100,8 @@ class NARX(GivenOrders, Method):
     # -- grid ---------------------------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:
         """Lags (tied na = nb unless given), nk, gamma and lambda (module docstring)."""
-        given = self.given_orders
-        sizes = [len(s) for s in data.segments] or [0]
-        derived = derived_orders(min(sizes), sum(sizes), len(data.input_names), int(self.options["max_lag"]),
-                                 LAG_BASE)
-        space: SearchSpace = {}
-        na, nb = given["na"], given["nb"]
-        if na is None and nb is None:
-            space["lags"] = np.array(derived)
-        else:
-            space["na"] = np.array(na if na is not None else derived)
-            space["nb"] = np.array(nb if nb is not None else derived)
-        space["nk"] = np.array(given["nk"])
+        space: SearchSpace = self.order_space(data, int(self.options["max_lag"]), LAG_BASE, tied="lags")
+        space["nk"] = np.array(self.given_orders["nk"])
         space["gamma"] = log_grid(*self._grid("gamma_grid"))
         space["lambda"] = log_grid(*self._grid("lambda_grid"))
         return space
