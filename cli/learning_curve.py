@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from enginebench.cli.options import check_output, load_plugins, plugin_option, store_option
+from enginebench.cli.progress import JobProgress
 
 
 @click.command("learning-curve")
@@ -61,18 +60,10 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     spec = spec.with_overrides(repetitions=repeats, train_size=train_size, methods=chosen,
                                method_options={k: v for k, v in spec.method_options.items() if k in chosen})
-    console = Console(stderr=True)
-    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                        TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=quiet, transient=False)
-    with progress:
-        task = progress.add_task(f"{spec.name} learning curve: preparing", total=None)
-
-        def tick(done: int, total: int, job) -> None:
-            progress.update(task, completed=done, total=total,
-                            description=f"{spec.name}: {job.split} {job.method} r{job.repetition}")
-
+    with JobProgress(f"{spec.name} learning curve: preparing",
+                     lambda job: f"{spec.name}: {job.split} {job.method} r{job.repetition}", quiet) as bar:
         result = run_learning_curve(spec, amounts, RunStore(store), rows=rows, workers=workers,
-                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=tick,
+                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar.tick,
                                     executor=executor or ("dask" if scheduler else "local"), scheduler=scheduler)
     summary = (result.run.read_table(SUMMARY_FILE) if metric == "mae"
                else summarize_curve(result.run.metrics(), metric=metric))

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from enginebench.cli.options import load_plugins, plugin_option, store_option
+from enginebench.cli.progress import JobProgress
 
 
 @click.command()
@@ -74,20 +74,11 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
             overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
         spec = spec.with_overrides(**overrides)
         name = spec.name
-    console = Console(stderr=True)
-    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                        TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=quiet, transient=False)
-    with progress:
-        task = progress.add_task(f"{name}: preparing", total=None)
-
-        def tick(done: int, total: int, job) -> None:
-            progress.update(task, completed=done, total=total,
-                            description=f"{name}: {job.method} r{job.repetition}")
-
+    with JobProgress(f"{name}: preparing", lambda job: f"{name}: {job.method} r{job.repetition}", quiet) as bar:
         result = run_experiment(spec, store_obj, workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
-                                progress=tick, resume=resume, executor=executor or ("dask" if scheduler else "local"),
+                                progress=bar.tick, resume=resume, executor=executor or ("dask" if scheduler else "local"),
                                 scheduler=scheduler, tags=tag_map)
-        progress.update(task, description=f"{name}: done")
+        bar.describe(f"{name}: done")
     raw = result.run.metrics()
     cfg = result.run.config()
     summary = summarize(raw, interval=cfg.get("interval", "t"))
