@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import EngineBenchError
-from enginebench.experiments.report import (REPORT_FILE, Predictions, ReportResult, _synthetic, _time_axis,
-                                            is_learning_curve, refit_predictions, write_report)
+from enginebench.experiments.report import (REPORT_FILE, Predictions, ReportResult, ReportSettings, _synthetic,
+                                            _time_axis, is_learning_curve, refit_predictions, write_report)
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run
@@ -240,42 +240,40 @@ def write_interactive_report(
     run: Run,
     path: str | Path,
     *,
-    metrics: Sequence[str] | None = None,
-    interval: str | None = None,
-    figures: bool = True,
-    repetition: int = 0,
-    part: str = "test",
-    methods: Sequence[str] | None = None,
-    trajectories: int = 3,
     max_points: int | None = None,
     predictions: Sequence[Predictions] | None = None,
     simulated: Sequence[Any] | None = None,
     notes: Sequence[str] = (),
+    **settings: Any,
 ) -> InteractiveResult:
     """Write the interactive page of ``run`` to ``path`` (one HTML file, plotly.js inlined once).
 
+    ``settings``: the keywords of ``report.ReportSettings`` (metrics, interval, figures,
+    repetition, part, methods, trajectories), as for ``write_report``.
     The time series and scatters come from ``predictions`` / ``simulated`` when given
     (what ``write_report`` re-fitted), otherwise from re-fitting ``repetition`` here;
     ``figures=False`` draws none of them (no data loaded). ``notes`` are shown on the page.
     """
+    opts = ReportSettings(**settings)
+    repetition, part, methods = opts.repetition, opts.part, opts.methods
     from enginebench.results.interactive import MAX_POINTS
 
     max_points = MAX_POINTS if max_points is None else max_points
     cfg = run.config()
     raw = run.metrics()
-    summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
-    metrics = list(metrics) if metrics else list(tables.default_metrics(summary))
+    summary = tables.summarize(raw, interval=opts.interval or cfg.get("interval", "t"))
+    metrics = list(opts.metrics) if opts.metrics else list(tables.default_metrics(summary))
     units = run_units(run)
     result = InteractiveResult(Path(path), notes=list(notes))
     page = _Page()
     _table_section(page, summary, metrics, units)
-    if figures and not is_learning_curve(run):
+    if opts.figures and not is_learning_curve(run):
         if predictions is None and simulated is None:
             try:
                 if cfg.get("mode") == "simulation":
                     from enginebench.experiments.plots_run import simulate_run
 
-                    simulated, more = simulate_run(run, list(methods) if methods else None, trajectories, part,
+                    simulated, more = simulate_run(run, list(methods) if methods else None, opts.trajectories, part,
                                                    repetition)
                 else:
                     predictions, more = refit_predictions(run, repetition=repetition, part=part, methods=methods)
@@ -285,7 +283,7 @@ def write_interactive_report(
                     raise
                 result.notes.append(f"prediction figures skipped: {exc}")
         _prediction_sections(page, _series(predictions or [], simulated or []), units, max_points)
-    elif figures:
+    elif opts.figures:
         result.notes.append("learning-curve run: no prediction figures (each amount of data is its own model); "
                             f"its curve is in {REPORT_FILE}")
     _strip_section(page, raw, metrics, units)
@@ -312,8 +310,7 @@ def write_reports(run: Run, out_dir: str | Path, *, interactive: bool = True, **
         notes.append(f"interactive report ({INTERACTIVE_FILE}) not written: plotly is not installed; {INSTALL_HINT}")
     if not make:
         return static, None, notes
-    keep = {k: options[k] for k in ("metrics", "interval", "figures", "repetition", "part", "methods", "trajectories")
-            if k in options}
+    keep = {k: options[k] for k in ReportSettings.names() if k in options}
     page = write_interactive_report(run, Path(out_dir) / INTERACTIVE_FILE, predictions=static.predictions,
                                     simulated=static.simulated, notes=static.notes, **keep)
     notes += [n for n in page.notes if n not in static.notes]

@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import html
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -85,6 +85,29 @@ class ReportResult:
     predictions: list[Predictions] = field(default_factory=list)
     simulated: list = field(default_factory=list)
     """Simulation runs: the re-fitted trajectories drawn (``plots_run.Simulated``)."""
+
+
+@dataclass(frozen=True)
+class ReportSettings:
+    """What a report shows and re-fits: the keywords ``write_report`` and ``write_interactive_report`` share.
+
+    ``metrics``: the table's columns (default: those of the run's mode); ``interval``: of
+    the summary (default: the run's); ``figures=False``: tables only; ``repetition``,
+    ``part`` and ``methods``: what is re-fitted and predicted for the figures (default: all
+    methods); ``trajectories``: segments drawn per method of a simulation run.
+    """
+
+    metrics: Sequence[str] | None = None
+    interval: str | None = None
+    figures: bool = True
+    repetition: int = 0
+    part: str = "test"
+    methods: Sequence[str] | None = None
+    trajectories: int = 3
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
 
 
 def _safe(text: str) -> str:
@@ -351,34 +374,29 @@ def write_report(
     run: Run,
     out_dir: str | Path,
     *,
-    metrics: Sequence[str] | None = None,
     paired_metric: str | None = None,
-    interval: str | None = None,
-    figures: bool = True,
-    repetition: int = 0,
-    part: str = "test",
-    methods: Sequence[str] | None = None,
-    trajectories: int = 3,
     max_rows: int = MAX_ROWS,
     interactive: str | None = None,
+    **settings: Any,
 ) -> ReportResult:
     """Write ``out_dir/index.html`` with ``run``'s tables, settings and PNG figures beside it.
 
-    ``interactive``: the file name of an interactive report written beside it, linked from the page.
-
-    ``figures=False`` writes the tables only (no data loaded, no re-fit). Figures needing
-    predictions re-fit ``repetition`` on ``part`` (see the module docstring). ``metrics``
-    defaults to the columns of the run's mode (``tables.default_metrics``); the paired
-    tests to rmse in simulation mode and mae otherwise ('' skips them).
+    ``settings``: the keywords of ``ReportSettings``; ``figures=False`` writes the tables
+    only (no data loaded, no re-fit), figures needing predictions re-fit ``repetition`` on
+    ``part`` (see the module docstring). ``paired_metric``: of the paired tests (default
+    rmse in simulation mode, mae otherwise; '' skips them). ``interactive``: the file name
+    of an interactive report written beside it, linked from the page.
     """
+    opts = ReportSettings(**settings)
+    repetition, part, methods = opts.repetition, opts.part, opts.methods
     if repetition < 0:
         raise MethodError(f"repetition must be >= 0, got {repetition}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cfg = run.config()
     raw = run.metrics()
-    summary = tables.summarize(raw, interval=interval or cfg.get("interval", "t"))
-    metrics = list(metrics) if metrics else tables.default_metrics(summary)
+    summary = tables.summarize(raw, interval=opts.interval or cfg.get("interval", "t"))
+    metrics = list(opts.metrics) if opts.metrics else tables.default_metrics(summary)
     if paired_metric is None:
         paired_metric = tables.default_paired_metric(cfg.get("mode", ""))
     table_path = out / TABLE_FILE
@@ -392,18 +410,18 @@ def write_report(
 
         curve_summary = summarize_curve(raw)
         curve_text = curve_table(curve_summary)
-        if figures and not curve_summary.empty:
+        if opts.figures and not curve_summary.empty:
             path = plot_curve(curve_summary, out / "learning_curve.png")
             if path is not None:
                 result.figures.append(Figure(path, "learning-curve", "test MAE against months of training data "
                                                                      "(mean ± Student-t 95% half-width over repetitions)"))
-    if figures and curve:
+    if opts.figures and curve:
         result.notes.append("learning-curve run: prediction figures are not drawn (each amount of data is its own model)")
-    elif figures:
+    elif opts.figures:
         try:
             if cfg.get("mode") == "simulation":
                 drawn, notes, result.simulated = _simulation_figures(run, out, methods, part, repetition,
-                                                                     trajectories)
+                                                                     opts.trajectories)
             else:
                 preds, notes = refit_predictions(run, repetition=repetition, part=part, methods=methods, max_rows=max_rows)
                 result.predictions = preds
