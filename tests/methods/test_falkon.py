@@ -177,6 +177,31 @@ def test_bad_parameters_are_named(kwargs, message):
         FalkonSolver(**kwargs)
 
 
+@pytest.mark.parametrize("settings, message", [
+    (dict(maxiter=0), "parameter 'maxiter' must be an integer >= 1, got 0"),
+    (dict(block_rows=2.5), "parameter 'block_rows' must be an integer >= 1, got 2.5"),
+    (dict(dtype=torch.float16), "dtype must be torch.float32 or torch.float64"),
+    (dict(tol=-1e-3), "parameter 'tol' must be a finite number >= 0"),
+    (dict(cache_mib=-1.0), "parameter 'cache_mib' must be a finite number >= 0 (0 = always stream)"),
+    (dict(block_mib=0.0), "parameter 'block_mib' must be a positive finite number, got 0.0"),
+])
+def test_solver_and_path_check_their_shared_settings_alike(settings, message):
+    """FalkonSolver and falkon_path take the same SolverSettings keywords and refuse them with the same message."""
+    X, y = smooth_problem(20, 2, np.random.default_rng(0))
+    pattern = message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")
+    with pytest.raises(MethodError, match=pattern):
+        FalkonSolver(1.0, 1.0, device="cpu", **settings)
+    with pytest.raises(MethodError, match=pattern):
+        falkon_path(X, y, X, 1.0, [1.0], 5, np.random.default_rng(0), device="cpu", **settings)
+
+
+def test_an_unknown_setting_is_refused():
+    with pytest.raises(TypeError, match="unknown"):
+        FalkonSolver(1.0, 1.0, unknown=1)
+    with pytest.raises(TypeError, match="unknown"):
+        falkon_path(np.ones((4, 1)), np.ones(4), np.ones((4, 1)), 1.0, [1.0], 2, np.random.default_rng(0), unknown=1)
+
+
 def test_unavailable_cuda_is_a_readable_error():
     if torch.cuda.is_available():
         pytest.skip("CUDA is available here")
