@@ -5,7 +5,7 @@ table sortable by clicking its headers, failed jobs with their reasons, zoomable
 series of the evaluated part (one toggleable trace per method, diverged trajectories
 dashed, mixing weights as stacked bands underneath), measured vs predicted scatters,
 each metric per repetition, and the validation curves of model selection. The
-predictions come from the same re-fit as the static report (``report.refit_predictions``
+predictions come from the same re-fit as the static report (``report_refit.refit_predictions``
 for static/window runs, ``plots_run.simulate_run`` for simulation runs); ``write_reports``
 writes both pages from one re-fit. Figures are built by ``results.interactive``.
 """
@@ -22,8 +22,10 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import EngineBenchError
-from enginebench.experiments.report import (REPORT_FILE, Predictions, ReportResult, ReportSettings, _synthetic,
-                                            _time_axis, is_learning_curve, refit_predictions, write_report)
+from enginebench.experiments.report import (REPORT_FILE, ReportResult, ReportSettings, _synthetic, is_learning_curve,
+                                            write_report)
+from enginebench.experiments.report_figures import _time_axis
+from enginebench.experiments.report_refit import Predictions, refit_predictions
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run

@@ -17,6 +17,9 @@ copied, zipped or logged as one artefact:
 
 A figure that cannot be drawn (a missing dataset, a failed re-fit) is skipped with a
 note in the page, never silently.
+
+This module writes the page; the re-fit is ``report_refit.py`` and the PNG figures
+``report_figures.py``, whose names stay importable from here.
 """
 
 from __future__ import annotations
@@ -31,47 +34,30 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import EngineBenchError, MethodError
+from enginebench.experiments.report_figures import Figure, prediction_figures, simulation_figures, time_trend_plot
+from enginebench.experiments.report_refit import MAX_ROWS, REFIT_ERRORS, Predictions, refit_predictions
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run
 from enginebench.results.units import run_units
 
+__all__ = [
+    "Figure",
+    "MAX_ROWS",
+    "Predictions",
+    "REFIT_ERRORS",
+    "REPORT_FILE",
+    "ReportResult",
+    "ReportSettings",
+    "TABLE_FILE",
+    "is_learning_curve",
+    "refit_predictions",
+    "time_trend_plot",
+    "write_report",
+]
+
 REPORT_FILE = "index.html"
 TABLE_FILE = "table.csv"
-MAX_ROWS = 20_000
-"""Most rows of the evaluated part predicted for the static/window figures (evenly thinned beyond)."""
-REFIT_ERRORS = (EngineBenchError, ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError)
-
-
-@dataclass(frozen=True)
-class Figure:
-    """One PNG of the report: its path, kind (scatter, trend, trajectory, learning-curve) and caption."""
-
-    path: Path
-    kind: str
-    caption: str
-
-
-@dataclass
-class Predictions:
-    """One method re-fitted for one repetition, predicted on the rows drawn of one evaluated part."""
-
-    target: str
-    window: float
-    split: str
-    method: str
-    part: str
-    repetition: int
-    time: np.ndarray
-    """Time stamps (seconds, the dataset's time axis) of the predicted rows, in order."""
-    truth: np.ndarray
-    pred: np.ndarray
-    segment: np.ndarray
-    """Segment index of each row (lines break between segments)."""
-    diverged: np.ndarray | None = None
-    """Per row: True on the segments whose free run left its envelope (``SegmentPredictions.diverged``)."""
-    weights: np.ndarray | None = None
-    """(rows, k) mixing weights from the method's ``explain`` hook, or None when it declares none."""
 
 
 @dataclass
@@ -110,177 +96,9 @@ class ReportSettings:
         return tuple(f.name for f in fields(cls))
 
 
-def _safe(text: str) -> str:
-    import re
-
-    return re.sub(r"[^A-Za-z0-9._-]+", "-", str(text)).strip("-")
-
-
 def is_learning_curve(run: Run) -> bool:
     """True for a run written by ``enginebench learning-curve`` (its config carries the curve settings)."""
     return "learning_curve" in run.config()
-
-
-# -- predictions --------------------------------------------------------------------
-
-def refit_predictions(
-    run: Run,
-    *,
-    repetition: int = 0,
-    part: str = "test",
-    methods: Sequence[str] | None = None,
-    max_rows: int = MAX_ROWS,
-) -> tuple[list[Predictions], list[str]]:
-    """Re-fit the methods of a static or window run for one repetition and predict ``part``.
-
-    Each method is fitted on the training subsample the run drew for that repetition and
-    split (the same seeds as the run's job) with the hyperparameters the job selected, so
-    a deterministic method reproduces the job's predictions exactly; a stochastic one
-    draws afresh (selection is not replayed). Parts longer than ``max_rows`` are thinned
-    to evenly spaced rows. Returns the predictions and notes on what was skipped.
-    """
-    from enginebench.experiments.jobs import Job, refit_stored_job, training_samples
-    from enginebench.experiments.plots_run import weights_of
-    from enginebench.experiments.runner import prepare
-    from enginebench.experiments.spec import from_dict
-
-    spec = from_dict(run.config(), origin=f"run {run.id}")
-    if spec.mode == "simulation":
-        raise MethodError(f"run {run.id} is a simulation run; its trajectories are redrawn by 'enginebench plots'")
-    if max_rows < 1:
-        raise MethodError(f"max_rows must be >= 1, got {max_rows}")
-    ctx = prepare(spec)
-    chosen = list(methods) if methods else list(spec.methods)
-    unknown = [m for m in chosen if m not in ctx.methods]
-    if unknown:
-        raise MethodError(f"run {run.id} did not run method(s) {', '.join(unknown)}; it ran {', '.join(ctx.methods)}")
-    out: list[Predictions] = []
-    notes: list[str] = []
-    for (target, window, split), problem in ctx.problems.items():
-        if part not in problem.parts:
-            notes.append(f"{target}, window {window:g} s, split {split}: no {part!r} part; not drawn")
-            continue
-        train = training_samples(spec, problem, repetition, split)
-        evaluated = problem.parts[part]
-        n = len(evaluated)
-        rows = np.arange(n) if n <= max_rows else np.unique(np.linspace(0, n - 1, max_rows).round().astype(np.int64))
-        if n > max_rows:
-            notes.append(f"{target}, window {window:g} s, {split}: {max_rows} of {n} {part} rows drawn (evenly spaced)")
-        shown = evaluated.take(rows)
-        time = np.concatenate([s.t[s.rows] for s in shown.segments])
-        truth = shown.y[:, 0]
-        segment = np.concatenate([np.full(len(s), k) for k, s in enumerate(shown.segments)])
-        for name in chosen:
-            where = f"{name} ({target}, window {window:g} s, {split}, repetition {repetition})"
-            job = Job(target, window, split, name, repetition)
-            try:
-                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
-                preds = ctx.methods[name].predict(fitted, shown.without_targets())
-                pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0]
-                                       for p, s in zip(preds, shown.segments)])
-                weights = weights_of(ctx.methods[name], fitted, shown.without_targets())
-            except REFIT_ERRORS as exc:
-                notes.append(f"{where}: re-fit failed ({type(exc).__name__}: {exc}); not drawn")
-                continue
-            flags = getattr(preds, "diverged", None)
-            out.append(Predictions(target, window, split, name, part, repetition, time, truth, pred, segment,
-                                   None if flags is None else np.asarray(flags, dtype=bool)[segment],
-                                   None if weights is None else np.concatenate(weights)))
-    return out, notes
-
-
-def _time_axis(seconds: np.ndarray) -> tuple[np.ndarray, str]:
-    """Time since the first row in a readable unit."""
-    rel = seconds - seconds.min() if seconds.size else seconds
-    span = float(rel.max()) if rel.size else 0.0
-    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
-        if span >= 3 * size:
-            return rel / size, unit
-    return rel, "s"
-
-
-def time_trend_plot(predictions: Sequence[Predictions], path: str | Path, *, title: str = "",
-                    size: tuple[float, float] = (11.0, 4.5), dpi: int = 100) -> Path:
-    """Measured and predicted (one line per method) over time on the shared rows; lines break between segments.
-
-    All ``predictions`` must share the same rows (one (target, window, split, part)).
-    Returns the PNG path.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure as MplFigure
-
-    if not predictions:
-        raise MethodError("time trend: no predictions to draw")
-    first = predictions[0]
-    for p in predictions[1:]:
-        if p.time.shape != first.time.shape or not np.array_equal(p.time, first.time):
-            raise MethodError("time trend: the predictions do not share the same rows")
-    x, unit = _time_axis(first.time)
-    breaks = np.flatnonzero(np.diff(first.segment) != 0) + 1
-
-    def broken(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # NaN between segments: no joining line
-        return np.insert(x.astype(float), breaks, np.nan), np.insert(values.astype(float), breaks, np.nan)
-
-    fig = MplFigure(figsize=size, dpi=dpi, layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    ax.plot(*broken(first.truth), color="black", lw=1.2, label="measured")
-    styles = ["-", "--", ":", "-."]
-    for k, p in enumerate(predictions):
-        ax.plot(*broken(p.pred), lw=0.9, ls=styles[k % len(styles)], label=p.method)
-    ax.set_xlabel(f"time since the first {first.part} row ({unit})")
-    ax.set_ylabel(first.target)
-    ax.legend(loc="best", fontsize="small", ncols=min(4, len(predictions) + 1))
-    ax.grid(alpha=0.3)
-    if title:
-        ax.set_title(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    return path
-
-
-def _prediction_figures(predictions: list[Predictions], out: Path, run: Run) -> list[Figure]:
-    from enginebench.results.plots import scatter_plot
-
-    figures = []
-    groups: dict[tuple, list[Predictions]] = {}
-    for p in predictions:
-        groups.setdefault((p.target, p.window, p.split, p.part), []).append(p)
-    for (target, window, split, part), group in groups.items():
-        stem = f"{_safe(target)}__w{window:g}__{_safe(split)}"
-        rep = group[0].repetition
-        path = time_trend_plot(group, out / f"{stem}__trend.png",
-                               title=f"{target}, window {window:g} s, {split}: {part} part (run {run.id}, "
-                                     f"repetition {rep}, re-fitted)")
-        figures.append(Figure(path, "trend", f"{target}, window {window:g} s, split {split}: measured and predicted "
-                                             f"over time on the {part} part (repetition {rep}, re-fitted)"))
-        for p in group:
-            path = scatter_plot(p.truth, p.pred, out / f"{stem}__scatter__{_safe(p.method)}.png",
-                                title=f"{p.method}: {target}, window {window:g} s, {split} {part}",
-                                label=target)
-            figures.append(Figure(path, "scatter", f"{p.method}: measured vs predicted {target}, window {window:g} s, "
-                                                   f"split {split}, {part} part (repetition {rep}, re-fitted)"))
-    return figures
-
-
-def _simulation_figures(run: Run, out: Path, methods, part: str, repetition: int, trajectories: int
-                        ) -> tuple[list[Figure], list[str], list]:
-    from enginebench.experiments.plots_run import plot_run
-
-    drawn = plot_run(run, out, list(methods) if methods else None, trajectories=trajectories, part=part,
-                     repetition=repetition)
-    figures = []
-    for path in drawn.paths:
-        if "__scatter__" in path.name:
-            figures.append(Figure(path, "scatter", f"measured vs simulated, {part} trajectories shown: "
-                                                   f"{path.stem.split('__scatter__')[-1]} (repetition {repetition}, re-fitted)"))
-        else:
-            banded = drawn.bands.get(path)
-            figures.append(Figure(path, "trajectory", f"simulated vs true on a {part} trajectory (repetition {repetition}, "
-                                                      "re-fitted)" + (f"; {banded} gate weights as bands underneath"
-                                                                      if banded else "")))
-    return figures, list(drawn.notes), drawn.simulated
 
 
 # -- the page -----------------------------------------------------------------------
@@ -420,12 +238,12 @@ def write_report(
     elif opts.figures:
         try:
             if cfg.get("mode") == "simulation":
-                drawn, notes, result.simulated = _simulation_figures(run, out, methods, part, repetition,
-                                                                     opts.trajectories)
+                drawn, notes, result.simulated = simulation_figures(run, out, methods, part, repetition,
+                                                                    opts.trajectories)
             else:
                 preds, notes = refit_predictions(run, repetition=repetition, part=part, methods=methods, max_rows=max_rows)
                 result.predictions = preds
-                drawn = _prediction_figures(preds, out, run)
+                drawn = prediction_figures(preds, out, run)
             result.figures += drawn
             result.notes += notes
         except EngineBenchError as exc:
