@@ -9,15 +9,16 @@ entry point group) imports from here only::
 ``declare.log_grid``...) declare a method's options once (``Method.declared_options``).
 
 Names here are kept stable across releases; the modules they come from (methods.base,
-datasets.samples, testing) are internal and may move. ``check_method`` is the
-conformance suite for a plugin's tests; ``SamplePool``/``RawSegments``/``tiny_samples``
-build samples for tests of one's own.
+datasets.samples, datasets.pools, testing) are internal and may move. ``check_method``
+is the conformance suite for a plugin's tests; ``SamplePool``/``RawSegments``/
+``tiny_samples`` build samples for tests of one's own.
 """
 
 from __future__ import annotations
 
 from enginebench import declare
-from enginebench.datasets.samples import RawSegments, SamplePool, Samples, SegmentSamples
+from enginebench.datasets.pools import RawSegments, SamplePool
+from enginebench.datasets.samples import Samples, SegmentSamples
 from enginebench.declare import Declaration
 from enginebench.errors import MethodError
 from enginebench.methods.base import (

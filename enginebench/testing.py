@@ -38,7 +38,8 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.samples import MODES, RawSegments, SamplePool, Samples, make_samples
+from enginebench.datasets.pools import RawSegments, SamplePool
+from enginebench.datasets.samples import MODES, Samples, make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.errors import DataError, EngineBenchError
 from enginebench.methods.base import FAMILIES, Method, SegmentPredictions, grid_points

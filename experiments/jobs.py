@@ -18,7 +18,8 @@ from typing import Any, Callable
 import numpy as np
 import pandas as pd
 
-from enginebench.datasets.samples import SamplePool, Samples
+from enginebench.datasets.pools import SamplePool
+from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec

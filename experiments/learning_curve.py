@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.samples import RawSegments, SamplePool
+from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import SpecError
 from enginebench.experiments import environment

@@ -18,7 +18,8 @@ from typing import Callable
 from enginebench.datasets import catalog
 from enginebench.datasets.dataset import Dataset
 from enginebench.datasets.io import read_dataset, read_metadata
-from enginebench.datasets.samples import RawSegments, SamplePool, check_targets
+from enginebench.datasets.pools import RawSegments, SamplePool
+from enginebench.datasets.samples import check_targets
 from enginebench.datasets.schema import Schema
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import SpecError, StoreError
