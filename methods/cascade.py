@@ -33,12 +33,14 @@ fixed), searched by the experiment's model selection. The upstream is tuned insi
 on a holdout of the training trajectories (the last ``upstream_holdout`` fraction, scored
 by segment-averaged MAE) over its own search space with ``upstream_params`` fixed; when
 every upstream hyperparameter is fixed there is no inner search.
+
+The parts a cascade is built from (component classes, the samples each component sees,
+the initial-value estimate, the holdout search, the fitted records) are
+``cascade_components.py``; their names stay importable from here.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Sequence
 
 import numpy as np
@@ -47,6 +49,13 @@ from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, Invalid, anything, choice, number, table, text
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, grid_points
+from enginebench.methods.cascade_components import (CascadeFitted, Initialiser, UpstreamFitted, component_class,
+                                                    holdout_search, initial_features, intermediate_values,
+                                                    segment_mae, target_samples, upstream_signals, with_inputs)
+
+__all__ = ["OPTIONS", "SOURCES", "TRAIN_ON", "Cascade", "CascadeFitted", "Initialiser", "MoEIdeal", "MoEMoE",
+           "MoENFIR", "SINDyIdeal", "SINDyNFIR", "UpstreamFitted", "component_class", "intermediate_values",
+           "segment_mae", "target_samples", "with_inputs"]
 
 SOURCES = ("model", "true")
 TRAIN_ON = ("model", "true")
@@ -89,117 +98,6 @@ OPTIONS = Declaration(
     table("surrogate_params", {}, "fixed NFIR hyperparameters of the surrogates; the rest are tuned on the holdout"),
 )
 """The cascade's options; each preset class (``moe-nfir``...) changes some defaults."""
-
-
-def component_class(name: str) -> type[Method]:
-    """A cascade component by method name, through the registry (built-ins, plugins, registered classes)."""
-    from enginebench.methods.registry import get
-
-    return get(name)
-
-
-# -- sample plumbing ----------------------------------------------------------------------
-def with_inputs(data: Samples, names: Sequence[str], U: Sequence[np.ndarray]) -> Samples:
-    """``data`` with new raw inputs per segment (simulation mode: the features are the inputs)."""
-    segs = tuple(replace(s, U=u, X=np.ascontiguousarray(u[s.rows])) for s, u in zip(data.segments, U))
-    return replace(data, segments=segs, input_names=tuple(names), feature_names=tuple(names))
-
-
-def intermediate_values(data: Samples, name: str) -> list[np.ndarray]:
-    """The measured intermediate over every raw row of each segment, from ``Z`` or from ``U``."""
-    if name in data.internal_names:
-        j = data.internal_names.index(name)
-        missing = [s.id for s in data.segments if s.Z is None]
-        if missing:
-            raise MethodError(
-                f"cascade: the measured {name!r} is needed here but segment {missing[0]!r} carries no internal columns "
-                "(prediction samples never do)"
-            )
-        return [np.asarray(s.Z[:, j], dtype=np.float64) for s in data.segments]
-    if name in data.input_names:
-        j = data.input_names.index(name)
-        return [np.asarray(s.U[:, j], dtype=np.float64) for s in data.segments]
-    raise MethodError(
-        f"cascade: the data have no column {name!r} (inputs: {', '.join(data.input_names)}; internals: "
-        f"{', '.join(data.internal_names) or 'none'}); give {name} the role 'internal' in the experiment "
-        f"(roles = {{ {name} = \"internal\" }})"
-    )
-
-
-def target_samples(data: Samples, name: str, inputs: Sequence[str], values: Sequence[np.ndarray] | None,
-                   y0: Sequence[np.ndarray] | None) -> Samples:
-    """Samples predicting the intermediate ``name`` from ``inputs`` (targets ``values`` when given).
-
-    Their initialisation window is empty (the intermediate is not measured at run time), so a
-    simulating upstream starts from ``y0``, the estimate of the intermediate at the first row.
-    """
-    cols = [data.input_names.index(c) for c in inputs]
-    segs = []
-    for k, s in enumerate(data.segments):
-        u = np.ascontiguousarray(s.U[:, cols])
-        segs.append(replace(
-            s, U=u, X=np.ascontiguousarray(u[s.rows]), Z=None,
-            y=None if values is None else values[k][s.rows][:, None],
-            y0=None if y0 is None else np.atleast_1d(np.asarray(y0[k], dtype=np.float64)),
-            # the init window measured the target, not the intermediate: the upstream starts from y0 (estimated)
-            y_init=np.empty((0, 1)),
-        ))
-    return replace(data, segments=tuple(segs), input_names=tuple(inputs), feature_names=tuple(inputs),
-                   target_names=(name,), internal_names=())
-
-
-@dataclass(frozen=True)
-class Initialiser:
-    """Ridge estimate of an intermediate from [run-time inputs, target] at one instant (standardised)."""
-
-    mean: np.ndarray
-    scale: np.ndarray
-    coef: np.ndarray
-    offset: float
-
-    @classmethod
-    def fit(cls, features: np.ndarray, z: np.ndarray, ridge: float = 1e-6) -> "Initialiser":
-        mean, scale = features.mean(0), features.std(0)
-        scale = np.where(scale > 0, scale, 1.0)
-        F = (features - mean) / scale
-        zc = z - z.mean()
-        coef = np.linalg.solve(F.T @ F + ridge * len(F) * np.eye(F.shape[1]), F.T @ zc)
-        return cls(mean=mean, scale=scale, coef=coef, offset=float(z.mean()))
-
-    def __call__(self, features: np.ndarray) -> np.ndarray:
-        return ((np.atleast_2d(features) - self.mean) / self.scale) @ self.coef + self.offset
-
-
-def _initial_features(data: Samples, inputs: Sequence[str], y: Sequence[np.ndarray]) -> np.ndarray:
-    """(n_segments, n_in + k) first-row features: run-time inputs at row 0 and the measured initial target."""
-    cols = [data.input_names.index(c) for c in inputs]
-    return np.array([np.r_[s.U[0, cols], np.ravel(yy)] for s, yy in zip(data.segments, y)])
-
-
-@dataclass
-class UpstreamFitted:
-    """One fitted upstream model of one intermediate signal."""
-
-    name: str
-    method: Method
-    fitted: Any
-    inputs: tuple[str, ...]
-    params: dict[str, Any]
-    search: dict[str, Any]
-    initialiser: Initialiser
-
-
-@dataclass
-class CascadeFitted:
-    """The fitted cascade: upstream models (none when ideal) and the downstream model."""
-
-    upstreams: list[UpstreamFitted]
-    """The surrogates' NFIR models first (option ``surrogates``), then one upstream per intermediate."""
-    downstream: Method
-    fitted: Any
-    down_inputs: tuple[str, ...]
-    source: str
-    intermediates: tuple[str, ...]
 
 
 class Cascade(Method):
@@ -287,42 +185,15 @@ class Cascade(Method):
                        train.y]),
             np.concatenate([z[s.rows] for z, s in zip(truth, train.segments)]),
         )
-        z0 = init(_initial_features(train, inputs, [s.y0 if s.y0 is not None else s.y[0] for s in train.segments]))
+        z0 = init(initial_features(train, inputs, [s.y0 if s.y0 is not None else s.y[0] for s in train.segments]))
         up_train = target_samples(train, name, inputs, truth, list(z0))
         method = cls(**self.options[options])
         space = dict(method.search_space(up_train))
         space.update({k: np.array([v]) for k, v in self.options[fixed].items()})
-        grid = grid_points(space)
-        params, search = (grid[0] if grid else {}), {"grid_size": len(grid)}
-        n_seg = len(up_train.segments)
-        if len(grid) > 1 and n_seg >= 2:
-            n_hold = min(n_seg - 1, max(1, math.ceil(self.options["upstream_holdout"] * n_seg)))
-            edges = np.r_[0, np.cumsum([len(s) for s in up_train.segments])]
-            fit_part = up_train.take(np.arange(edges[n_seg - n_hold]))
-            hold = up_train.take(np.arange(edges[n_seg - n_hold], edges[-1]))
-            preds = method.predict_grid(fit_part, hold.without_targets(), grid, rng)
-            score = segment_mae(preds, hold)
-            best = int(np.argmin(score))
-            params = grid[best]
-            search.update(holdout_segments=n_hold, best_score=float(score[best]))
+        params, search = holdout_search(method, up_train, grid_points(space), self.options["upstream_holdout"], rng)
         fitted = method.fit(up_train, params, rng)
         return UpstreamFitted(name=name, method=method, fitted=fitted, inputs=inputs,
                               params={k: _plain(v) for k, v in params.items()}, search=search, initialiser=init)
-
-    def _upstream_signals(self, ups: list[UpstreamFitted], data: Samples) -> tuple[list[list[np.ndarray]], np.ndarray]:
-        """Each upstream's prediction of its intermediate over every raw row of every segment, and diverged flags."""
-        full = replace(data, segments=tuple(replace(s, rows=np.arange(len(s.U)), y=None, Z=None) for s in data.segments))
-        y0 = [s.y0 if s.y0 is not None else (s.y[0] if s.y is not None else None) for s in data.segments]
-        if any(v is None for v in y0):
-            raise MethodError(f"method {self.name!r}: every segment needs its measured initial target y0 (simulation mode)")
-        signals, diverged = [], np.zeros(len(data.segments), dtype=bool)
-        for up in ups:
-            z0 = up.initialiser(_initial_features(full, up.inputs, y0))
-            part = target_samples(full, up.name, up.inputs, None, list(z0))
-            preds = up.method.predict(up.fitted, part)
-            diverged |= np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool)))
-            signals.append([np.asarray(p, dtype=np.float64).reshape(len(s.U), -1)[:, 0] for p, s in zip(preds, full.segments)])
-        return signals, diverged
 
     def _down_samples(self, data: Samples, signals: list[list[np.ndarray]]) -> Samples:
         """``data`` with the intermediates (``signals[i][segment]``) as the last input columns."""
@@ -335,7 +206,7 @@ class Cascade(Method):
         """``data`` with each surrogate's NFIR reconstruction appended as a run-time input column."""
         if not surs:
             return data
-        signals, _ = self._upstream_signals(surs, data)
+        signals, _ = upstream_signals(surs, data, self.name)
         U = [np.column_stack([s.U] + [sig[k] for sig in signals]) for k, s in enumerate(data.segments)]
         return with_inputs(data, data.input_names + tuple(u.name for u in surs), U)
 
@@ -350,7 +221,7 @@ class Cascade(Method):
         if self.options["train_on"] == "true":
             signals = [intermediate_values(train, n) for n in self.intermediates]
         else:
-            signals, _ = self._upstream_signals(ups, train)
+            signals, _ = upstream_signals(ups, train, self.name)
         return surs + ups, self._down_samples(train, signals)
 
     def _prepare_eval(self, models: list[UpstreamFitted], data: Samples) -> tuple[Samples, np.ndarray]:
@@ -360,7 +231,7 @@ class Cascade(Method):
         if self.options["source"] == "true":
             return self._down_samples(data, [intermediate_values(data, n) for n in self.intermediates]), \
                 np.zeros(len(data.segments), dtype=bool)
-        signals, diverged = self._upstream_signals(ups, data)
+        signals, diverged = upstream_signals(ups, data, self.name)
         return self._down_samples(data, signals), diverged
 
     # -- Method -----------------------------------------------------------------------------
@@ -440,15 +311,6 @@ class Cascade(Method):
             j = down_data.input_names.index(n)
             out[f"intermediate {n}"] = [s.U[s.rows, j][:, None] for s in down_data.segments]
         return out
-
-
-def segment_mae(predictions: np.ndarray, data: Samples) -> np.ndarray:
-    """Segment-averaged MAE of every grid point, (n_grid, n_rows, k) -> (n_grid,); non-finite -> inf."""
-    err = np.abs(predictions - data.y[None])
-    edges = np.r_[0, np.cumsum([len(s) for s in data.segments])]
-    per_seg = np.stack([err[:, a:b].mean(axis=(1, 2)) for a, b in zip(edges[:-1], edges[1:])], axis=1)
-    score = per_seg.mean(axis=1)
-    return np.where(np.isfinite(score), score, np.inf)
 
 
 def _plain(v: Any) -> Any:
