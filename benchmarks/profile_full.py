@@ -39,7 +39,7 @@ from enginebench.results.store import RunStore
 
 STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (1, "select (model selection)", (("experiments/selection.py", "select"),)),
-    (2, "window features", (("datasets/samples.py", "_features"),)),
+    (2, "window features", (("datasets/pools.py", "_features"),)),
     (2, "kernel matrices", (("methods/kernels.py", "sq_distances"), ("methods/kernels.py", "gaussian"),
                                   ("methods/kernels.py", "gaussian_apply"))),
     (2, "factorisations / solves", (("methods/shifted.py", "shifted_solutions"), ("methods/kernels.py", "from_kernel"))),
