@@ -49,7 +49,7 @@ STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (1, "fit (chosen point)", (("methods/", "fit"),)),
     (1, "predict parts", (("experiments/jobs.py", "predict_part"),)),
     (1, "metrics", (("results/metrics.py", "compute_metrics"),)),
-    (1, "write", (("results/store.py", "write_job"),)),
+    (1, "write", (("results/run_folder.py", "write_job"),)),
 ]
 """(depth, label, (path suffix, function name) ...): a stage's time is the sum of its functions' cumulative times."""
 
