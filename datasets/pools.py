@@ -202,13 +202,16 @@ class SamplePool:
         X_out = Y[past[:, 1:]].transpose(0, 2, 1).reshape(len(rows), -1)    # per target: lag 1..L, never lag 0
         return np.hstack([X_in, X_out])
 
-    def _segment(self, k: int, local: np.ndarray | None) -> SegmentSamples:
+    def _segment(self, k: int, local: np.ndarray | None, features: bool = True) -> SegmentSamples:
         seg = self.raw.segments[k]
         Y = seg.Y[:, self._target_cols]
         n = len(seg.t)
         rows = np.arange(self._skip, n) if local is None else np.asarray(local, dtype=np.int64) + self._skip
         whole = local is None and self._skip == 0
-        X = seg.U if whole else np.ascontiguousarray(self._features(seg, Y, rows))
+        if not features:
+            X = np.empty((len(rows), 0))
+        else:
+            X = seg.U if whole else np.ascontiguousarray(self._features(seg, Y, rows))
         sim = self.mode == "simulation"
         return SegmentSamples(id=seg.id, X=X, rows=rows, U=seg.U, t=seg.t, y=Y[rows],
                               y0=Y[0] if sim else None, Z=seg.Z,
@@ -227,16 +230,19 @@ class SamplePool:
         """Every row's samples (what ``make_samples`` returns)."""
         return self._samples([self._segment(k, None) for k in range(len(self.raw.segments))])
 
-    def take(self, index: np.ndarray) -> Samples:
-        """Rows at global positions ``index`` (repeats allowed), grouped by segment in segment order."""
+    def take(self, index: np.ndarray, features: bool = True) -> Samples:
+        """Rows at global positions ``index`` (repeats allowed), grouped by segment in segment order
+        (``features=False``: ``X`` with no columns, for a method that declares ``uses_features = False``)."""
         index = np.asarray(index, dtype=np.int64)
         if index.size and (index.min() < 0 or index.max() >= len(self)):
             raise IndexError(f"row index out of range 0..{len(self) - 1}")
         seg_of = np.searchsorted(self._offsets, index, side="right") - 1
         order = np.argsort(seg_of, kind="stable")
         index, seg_of = index[order], seg_of[order]
-        return self._samples([self._segment(int(k), index[seg_of == k] - self._offsets[k]) for k in np.unique(seg_of)])
+        return self._samples([self._segment(int(k), index[seg_of == k] - self._offsets[k], features)
+                              for k in np.unique(seg_of)])
 
-    def batches(self, max_rows: int) -> Iterator[Samples]:
-        """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks)."""
-        return iter_batches(self, max_rows)
+    def batches(self, max_rows: int, features: bool = True) -> Iterator[Samples]:
+        """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks);
+        ``features=False`` builds no feature rows (``take``)."""
+        return iter_batches(self, max_rows, features)

@@ -186,9 +186,10 @@ class Samples:
         """Rows per segment, in order."""
         return np.array([len(s) for s in self.segments], dtype=np.int64)
 
-    def batches(self, max_rows: int) -> Iterator["Samples"]:
-        """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks)."""
-        return iter_batches(self, max_rows)
+    def batches(self, max_rows: int, features: bool = True) -> Iterator["Samples"]:
+        """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks);
+        ``features`` is a pool's (these samples' features are built already)."""
+        return iter_batches(self, max_rows, features)
 
     def materialize(self) -> "Samples":
         """These samples (a ``SamplePool`` builds its rows here)."""
@@ -239,12 +240,15 @@ def make_samples(
     return SamplePool(raw, targets, mode, window, physical_model=physical_model).materialize()
 
 
-def iter_batches(data: "Samples | SamplePool", max_rows: int) -> Iterator[Samples]:
-    """``data`` in consecutive row blocks of at most ``max_rows`` rows (one block if it is small)."""
+def iter_batches(data: "Samples | SamplePool", max_rows: int, features: bool = True) -> Iterator[Samples]:
+    """``data`` in consecutive row blocks of at most ``max_rows`` rows (one block if it is small).
+
+    ``features=False`` (a pool only): the blocks' ``X`` have no columns, built without the window's lags."""
     n = len(data)
     step = max(1, int(max_rows))
     if n <= step and isinstance(data, Samples):
         yield data
         return
     for start in range(0, n, step):
-        yield data.take(np.arange(start, min(n, start + step)))
+        rows = np.arange(start, min(n, start + step))
+        yield data.take(rows) if isinstance(data, Samples) else data.take(rows, features=features)

@@ -233,7 +233,14 @@ def check_shapes(run: CheckRun, train: Samples, test: Samples) -> None:
         late = [s.id for s in view.segments if not (len(s.rows) and s.rows[0] == TINY_INIT)]
         if late:  # pragma: no cover - guards the check itself
             raise CheckFailed(f"internal: evaluated segment {late[0]!r} does not start after the initialisation window")
-    _fit_predict(run, train, test, params)  # checks one (len(s.rows), n_targets) array per segment (and flags)
+    fitted, preds, _ = _fit_predict(run, train, test, params)  # one (len(s.rows), n_targets) array per segment
+    if not getattr(run.method, "uses_features", True):  # the toolkit then builds no features: X has no columns
+        bare = replace(view, segments=tuple(replace(s, X=np.empty((len(s.rows), 0))) for s in view.segments))
+        got = _stacked(_call("predict with no feature columns (uses_features = False)",
+                             lambda: run.method.predict(fitted, bare)), bare, "predict")
+        if not np.array_equal(got, preds, equal_nan=True):
+            raise CheckFailed("uses_features = False, but predict gives other predictions when data.X has no columns: "
+                              "a method that reads data.X must keep uses_features = True")
     out = _call("predict_grid", lambda: run.method.predict_grid(train, view, grid, np.random.default_rng(run.seed)))
     expected = (len(grid), len(view), len(view.target_names))
     if np.shape(out) != expected:

@@ -166,7 +166,7 @@ def predict_part(method: Method, fitted: Any, part: "Samples | SamplePool", mode
         diverged = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool)))
         return [s.y for s in data.segments], guess, diverged
     truth, guess = [], []
-    for batch in part.batches(PREDICT_BATCH_ROWS):
+    for batch in part.batches(PREDICT_BATCH_ROWS, method.uses_features):
         preds = method.predict(fitted, batch.without_targets())
         k = len(batch.target_names)
         guess.append(np.concatenate([np.asarray(p, dtype=float).reshape(len(s), k) for p, s in zip(preds, batch.segments)])

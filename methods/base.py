@@ -67,6 +67,11 @@ class Method:
     """True for the method results tables measure skill against (``results.tables.BASELINE``
     names it: the training mean, family "baseline"); exactly one registered method declares it."""
 
+    uses_features: ClassVar[bool] = True
+    """False for a method that never reads ``data.X`` when it predicts (the training mean; a physical
+    model simulated from the raw inputs ``U``): the toolkit then builds no feature rows for the parts it
+    evaluates and hands it ``X`` with no columns. ``check_method`` checks the claim."""
+
     declared_options: ClassVar[Declaration] = Declaration()
     """Every constructor option: default, kind, accepted values, unit and meaning."""
 

@@ -17,6 +17,7 @@ class NaiveMean(Method):
     name = "naive-mean"
     family = "baseline"
     reference_baseline = True  # tables' skill is measured against it (results.tables.BASELINE)
+    uses_features = False
     modes = frozenset({"static", "window", "simulation"})
     summary = "training mean of the target"
 

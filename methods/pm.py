@@ -114,6 +114,7 @@ class PhysicalModelMethod(Method):
 
     name = "pm"
     family = "physical"
+    uses_features = False  # simulated from the raw inputs U
     modes = frozenset({"static", "window", "simulation"})
     summary = "the dataset's physical model"
 

@@ -62,3 +62,19 @@ def test_pool_refuses_a_target_that_is_not_an_output(toy):
     raw = RawSegments.from_dataset(toy)
     with pytest.raises(DataError, match=r"column 'nope' is not an 'output' column"):
         SamplePool(raw, ["nope"], "static")
+
+
+@pytest.mark.parametrize("mode, window", [("static", 0.0), ("window", 2.0)])
+def test_batches_without_features_keep_rows_targets_and_inputs(toy, mode, window):
+    """features=False (a method with uses_features = False): X has no columns; all else as with features."""
+    target = toy.schema.outputs[0]
+    pool = SamplePool(RawSegments.from_dataset(toy), [target], mode, window)
+    with_x, bare = list(pool.batches(50)), list(pool.batches(50, features=False))
+    assert len(with_x) == len(bare)
+    for a, b in zip(with_x, bare):
+        assert b.X.shape == (len(a), 0)
+        np.testing.assert_array_equal(a.y, b.y)
+        assert a.segment_ids() == b.segment_ids()
+        for sa, sb in zip(a.segments, b.segments):
+            np.testing.assert_array_equal(sa.rows, sb.rows)
+            assert sa.U is sb.U

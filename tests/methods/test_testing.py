@@ -389,3 +389,25 @@ def test_the_readme_example_method_conforms(tmp_path, monkeypatch):
     module = importlib.import_module("readme_ridge_example")
     report = check_method(module.Ridge, {"alpha_grid": (-2, 2, 5)})
     assert "bad-input[window]" in report.passed
+
+
+def test_a_method_claiming_not_to_use_features_is_checked():
+    """uses_features = False lets the toolkit skip building X; check_method catches a method that reads it anyway."""
+    from enginebench.api import Method
+    from enginebench.methods.naive import NaiveMean
+
+    class ReadsX(Method):
+        name = "reads-x"
+        family = "data-driven"
+        modes = frozenset({"static"})
+        uses_features = False
+
+        def fit(self, train, params, rng):
+            return train.y.mean(0)
+
+        def predict(self, fitted, data):
+            return [fitted + 0.0 * s.X.sum(1, keepdims=True) + (s.X.shape[1] > 0) for s in data.segments]
+
+    with pytest.raises(ConformanceError, match="uses_features = False, but predict gives other predictions"):
+        check_method(ReadsX)
+    assert "shapes[static]" in check_method(NaiveMean).passed
