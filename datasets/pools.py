@@ -197,10 +197,16 @@ class SamplePool:
         L = self.lags
         if L == 0:
             return seg.U[rows]
+        m, p, q = len(rows), seg.U.shape[1], Y.shape[1]
         past = rows[:, None] - np.arange(L + 1)[None, :]                     # (m, L + 1): t, t-1, ..., t-L
-        X_in = seg.U[past].transpose(0, 2, 1).reshape(len(rows), -1)        # per input: lag 0..L
-        X_out = Y[past[:, 1:]].transpose(0, 2, 1).reshape(len(rows), -1)    # per target: lag 1..L, never lag 0
-        return np.hstack([X_in, X_out])
+        out = np.empty((m, p * (L + 1) + q * L))                            # written once, no hstack copy
+        X_in = out[:, : p * (L + 1)].view()
+        X_in.shape = (m, p, L + 1)                                          # a view (raises rather than copy)
+        X_in[...] = seg.U[past].transpose(0, 2, 1)                          # per input: lag 0..L
+        X_out = out[:, p * (L + 1):].view()
+        X_out.shape = (m, q, L)
+        X_out[...] = Y[past[:, 1:]].transpose(0, 2, 1)                      # per target: lag 1..L, never lag 0
+        return out
 
     def _segment(self, k: int, local: np.ndarray | None, features: bool = True) -> SegmentSamples:
         seg = self.raw.segments[k]

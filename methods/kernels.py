@@ -11,6 +11,7 @@ component and comes back with ``lift`` or ``predict_coeffs``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 import scipy.linalg
@@ -29,6 +30,39 @@ def make_scaler(X: np.ndarray, standardize: bool = True) -> StandardScaler:
     models always carry a scaler and the prediction path is the same either way.
     """
     return StandardScaler(with_mean=standardize, with_std=standardize).fit(X)
+
+
+def standardize_rows(scaler: StandardScaler, blocks: Sequence[np.ndarray], extra: np.ndarray | None = None
+                     ) -> np.ndarray:
+    """``scaler.transform`` of the row ``blocks`` stacked, with the columns ``extra`` (rows, c) beside them.
+
+    The arithmetic of ``StandardScaler.transform`` ((x - mean_) / scale_, elementwise: the same
+    numbers), written once into one array: no stacked copy of the blocks, no ``hstack`` with
+    ``extra`` and no copy for the scaler (on a million-row test part those copies cost as
+    much as a tenth of a kernel method's prediction). The caller checks finiteness.
+    """
+    d = int(scaler.n_features_in_)
+    n = sum(len(b) for b in blocks)
+    width = d - (0 if extra is None else extra.shape[1])
+    mean, scale = scaler.mean_, scaler.scale_  # None for an identity scaler (standardize=False)
+    out = np.empty((n, d))
+
+    def put(src: np.ndarray, lo: int, hi: int, rows: slice) -> None:
+        dst = out[rows, lo:hi]
+        if mean is not None:
+            np.subtract(src, mean[lo:hi], out=dst)
+        else:
+            dst[...] = src
+        if scale is not None:
+            np.divide(dst, scale[lo:hi], out=dst)
+
+    start = 0
+    for b in blocks:
+        put(b, 0, width, slice(start, start + len(b)))
+        start += len(b)
+    if extra is not None:
+        put(extra, width, d, slice(0, n))
+    return out
 
 
 KERNEL_BLOCK_ROWS = 256

@@ -20,7 +20,8 @@ from enginebench.declare import Declaration, choice, flag, text, whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.kernels import check_positive, gaussian, gaussian_apply, make_scaler, sq_distances
+from enginebench.methods.kernels import (check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
+                                         standardize_rows)
 from enginebench.methods.shifted import ridge_solutions
 
 
@@ -103,14 +104,16 @@ class KRLS(Method):
         return scaler, scaler.transform(X), y - y_mean, y_mean
 
     def _eval_features(self, scaler: StandardScaler, X_train: np.ndarray, data: Samples) -> np.ndarray:
-        X = data.X
-        if X.shape[1] != X_train.shape[1]:
+        blocks = [s.X for s in data.segments]
+        width = blocks[0].shape[1] if blocks else len(data.feature_names)
+        if width != X_train.shape[1]:
             raise MethodError(
-                f"method {self.name!r}: the data have {X.shape[1]} feature columns but the model was trained on "
+                f"method {self.name!r}: the data have {width} feature columns but the model was trained on "
                 f"{X_train.shape[1]}; predict with samples built for the same inputs, mode and window"
             )
-        _check_finite(X, "features to predict", data.feature_names, self.name)
-        return scaler.transform(X)
+        Xe = standardize_rows(scaler, blocks)  # scaler.transform(data.X) without its copies
+        _check_finite(Xe, "features to predict", data.feature_names, self.name)  # (x - mean) / scale: nan/inf where x is
+        return Xe
 
     # -- single grid point --------------------------------------------------------------
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> KRLSFitted:
@@ -194,6 +197,9 @@ def _params(params: Params) -> tuple[float, float]:
 
 def _check_finite(values: np.ndarray, what: str, names: Sequence[str], who: str = "krls") -> None:
     """MethodError naming the first column and row with nan/inf."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.sum(values)):  # one pass, no mask: a finite sum has no nan/inf term
+            return
     bad = ~np.isfinite(values)
     if bad.any():
         row, col = np.argwhere(bad)[0]

@@ -52,7 +52,8 @@ from enginebench.declare import choice, flag
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.kernels import Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances
+from enginebench.methods.kernels import (Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
+                                         standardize_rows)
 from enginebench.methods.krls import KRLS, _check_finite
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
 from enginebench.methods.shifted import shifted_solutions
@@ -155,16 +156,18 @@ class MTLKRLS(KRLS):
 
     def _eval(self, data: Samples, pm_params: dict[str, Any], scaler: StandardScaler) -> np.ndarray:
         expected = scaler.n_features_in_ - (1 if self.options["pm_feature"] else 0)
-        if data.X.shape[1] != expected:
+        blocks = [s.X for s in data.segments]
+        width = blocks[0].shape[1] if blocks else len(data.feature_names)
+        if width != expected:
             raise MethodError(
-                f"method 'mtl-krls': the data have {data.X.shape[1]} feature columns but the model was trained on "
+                f"method 'mtl-krls': the data have {width} feature columns but the model was trained on "
                 f"{expected}; predict with samples built for the same inputs, mode and window"
             )
         pm = physical_model(data)
         p = np.concatenate(simulate_rows(pm, pm_params, data))
-        X = self._features(data, p)
-        _check_finite(X, "features to predict (with the PM prediction)", (*data.feature_names, "pm"), self.name)
-        return scaler.transform(X)
+        Xe = standardize_rows(scaler, blocks, p if self.options["pm_feature"] else None)  # scaler.transform([X, p])
+        _check_finite(Xe, "features to predict (with the PM prediction)", (*data.feature_names, "pm"), self.name)
+        return Xe
 
     # -- one grid point -------------------------------------------------------------------
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MTLFitted:

@@ -463,3 +463,20 @@ def test_grid_matches_kernel_ridge_per_blocked_fold() -> None:
         for k, p in enumerate(grid):
             ref = _kr(X[train], y[train] - mean, X[test], p["gamma"], p["lambda"]) + mean
             np.testing.assert_allclose(out[k, :, 0], ref, rtol=0, atol=1e-8 * np.abs(y).max(), err_msg=str(p))
+
+
+@pytest.mark.parametrize("standardize", [True, False])
+@pytest.mark.parametrize("extra_cols", [0, 2])
+def test_standardize_rows_is_the_scalers_transform_bit_for_bit(standardize: bool, extra_cols: int) -> None:
+    """The prediction path's standardisation: blocks stacked and [X, extra] scaled in one array, the same
+    numbers as StandardScaler.transform(np.hstack([np.vstack(blocks), extra]))."""
+    from enginebench.methods.kernels import make_scaler, standardize_rows
+
+    rng = np.random.default_rng(3)
+    blocks = [rng.normal(5.0, 3.0, (n, 7)) * rng.uniform(0.1, 100, 7) for n in (13, 1, 40)]
+    extra = rng.normal(300.0, 20.0, (54, extra_cols)) if extra_cols else None
+    stacked = np.vstack(blocks) if extra is None else np.hstack([np.vstack(blocks), extra])
+    scaler = make_scaler(stacked[::2], standardize)
+    got = standardize_rows(scaler, blocks, extra)
+    np.testing.assert_array_equal(got, scaler.transform(stacked))
+    assert got.flags.c_contiguous and got.shape == stacked.shape
