@@ -74,11 +74,21 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
             overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
         spec = spec.with_overrides(**overrides)
         name = spec.name
-    with JobProgress(f"{name}: preparing", lambda job: f"{name}: {job.method} r{job.repetition}", quiet) as bar:
-        result = run_experiment(spec, store_obj, workers=workers, plugins=tuple(str(Path(p).resolve()) for p in plugins),
-                                progress=bar.tick, resume=resume, executor=executor or ("dask" if scheduler else "local"),
-                                scheduler=scheduler, tags=tag_map)
-        bar.describe(f"{name}: done")
+    known = {r.id for r in store_obj.runs()}
+    try:
+        with JobProgress(f"{name}: preparing", lambda job: f"{name}: {job.method} r{job.repetition}", quiet) as bar:
+            result = run_experiment(spec, store_obj, workers=workers,
+                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar.tick,
+                                    resume=resume, executor=executor or ("dask" if scheduler else "local"),
+                                    scheduler=scheduler, tags=tag_map)
+            bar.describe(f"{name}: done")
+    except (KeyboardInterrupt, SystemExit):
+        stopped = resume or next((r for r in reversed(store_obj.runs()) if r.id not in known), None)
+        if stopped is not None:
+            info = stopped.info()
+            click.echo(f"interrupted: {info.get('finished_jobs', '?')} of {info.get('n_jobs', '?')} jobs of run "
+                       f"{stopped.id} are stored; finish it with `enginebench run --resume {stopped.id}`", err=True)
+        raise
     raw = result.run.metrics()
     cfg = result.run.config()
     summary = summarize(raw, interval=cfg.get("interval", "t"))

