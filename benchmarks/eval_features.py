@@ -22,7 +22,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.pools import RawSegments, SamplePool, SegmentArrays
-from enginebench.methods.kernels import make_scaler, standardize_rows
+from enginebench.methods.numerics.kernels import make_scaler, standardize_rows
 from enginebench.methods.krls import _check_finite
 
 

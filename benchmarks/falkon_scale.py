@@ -23,7 +23,7 @@ import time
 import numpy as np
 import torch
 
-from enginebench.methods.falkon import FalkonSolver
+from enginebench.methods.numerics.falkon import FalkonSolver
 
 NOISE_SD = 0.1
 N_TEST = 10_000

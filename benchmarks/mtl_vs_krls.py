@@ -24,7 +24,7 @@ from enginebench.datasets.dataset import Dataset
 from enginebench.datasets.samples import make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.methods.base import grid_points
-from enginebench.methods.kernels import gaussian, sq_distances
+from enginebench.methods.numerics.kernels import gaussian, sq_distances
 from enginebench.methods.krls import KRLS
 from enginebench.methods.mtl_krls import MTLKRLS
 

@@ -40,9 +40,9 @@ from enginebench.results.store import RunStore
 STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (1, "select (model selection)", (("experiments/selection.py", "select"),)),
     (2, "window features", (("datasets/pools.py", "_features"),)),
-    (2, "kernel matrices", (("methods/kernels.py", "sq_distances"), ("methods/kernels.py", "gaussian"),
-                                  ("methods/kernels.py", "gaussian_apply"))),
-    (2, "factorisations / solves", (("methods/shifted.py", "shifted_solutions"), ("methods/kernels.py", "from_kernel"))),
+    (2, "kernel matrices", (("methods/numerics/kernels.py", "sq_distances"), ("methods/numerics/kernels.py", "gaussian"),
+                                  ("methods/numerics/kernels.py", "gaussian_apply"))),
+    (2, "factorisations / solves", (("methods/numerics/shifted.py", "shifted_solutions"), ("methods/numerics/kernels.py", "from_kernel"))),
     (2, "scoring", (("experiments/selection.py", "grid_scores"),)),
     (2, "MoE training epochs", (("methods/moe/training.py", "_train"),)),
     (2, "simulation (free run)", (("methods/moe/simulation.py", "simulate"), ("methods/numerics/integrate.py", "integrate"))),

@@ -47,7 +47,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.declare import Invalid, choice, listing
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
+from enginebench.methods.base import Params, SearchSpace, log_grid
 from enginebench.methods.krls import KRLS, KRLSFitted
 from enginebench.methods.mtl_krls import MTLFitted, MTLKRLS
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows

@@ -4,7 +4,7 @@ The whole (gamma, lambda) grid costs at most one Householder tridiagonalisation 
 training kernel per gamma (a third of an eigendecomposition): every lambda is then an
 O(n) tridiagonal solve. Where a shifted Lanczos basis certifies every lambda within a
 few dozen matrix-vector products (small or large gamma), not even that
-(``ridge_solutions`` in ``methods/kernels.py``).
+(``ridge_solutions`` in ``methods/numerics/shifted.py``).
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from enginebench.declare import Declaration, choice, flag, text, whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.kernels import (check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
+from enginebench.methods.numerics.kernels import (check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
                                          standardize_rows)
-from enginebench.methods.shifted import ridge_solutions
+from enginebench.methods.numerics.shifted import ridge_solutions
 
 
 SOLVERS = ("auto", "exact", "falkon")
@@ -82,7 +82,7 @@ class KRLS(Method):
         return solver == "falkon" or (solver == "auto" and n_rows > int(self.options["exact_max_rows"]))
 
     def _falkon(self, gamma: float, lam: float):
-        from enginebench.methods.falkon import FalkonSolver
+        from enginebench.methods.numerics.falkon import FalkonSolver
 
         return FalkonSolver(gamma=gamma, lam=lam, centres=int(self.options["centres"]), device=self.options["device"])
 
@@ -153,7 +153,7 @@ class KRLS(Method):
         gammas = np.array([g for g, _ in pairs])
         lambdas = np.array([lam for _, lam in pairs])
         if self.uses_falkon(len(Xs)):
-            from enginebench.methods.falkon import falkon_path
+            from enginebench.methods.numerics.falkon import falkon_path
 
             for gamma in dict.fromkeys(gammas.tolist()):
                 idx = np.flatnonzero(gammas == gamma)

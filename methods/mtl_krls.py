@@ -52,11 +52,11 @@ from enginebench.declare import choice, flag
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.kernels import (Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
+from enginebench.methods.numerics.kernels import (Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
                                          standardize_rows)
 from enginebench.methods.krls import KRLS, _check_finite
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
-from enginebench.methods.shifted import shifted_solutions
+from enginebench.methods.numerics.shifted import shifted_solutions
 
 HYPERPARAMETERS = ("gamma", "lambda", "theta")
 

@@ -56,7 +56,7 @@ from enginebench.declare import log_grid as grid
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
                                          training_trajectories)
-from enginebench.methods.kernels import check_positive
+from enginebench.methods.numerics.kernels import check_positive
 # the numerics; NARXFit and nystroem_ridge stay importable from here
 from enginebench.methods.narx_model import (KernelModel, NARXFit, Standardised, free_run, nystroem_ridge,
                                             regressors, standardise)

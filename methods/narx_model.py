@@ -7,7 +7,7 @@ protocol and this module as the arithmetic.
 Solvers: up to ``exact_max_rows`` regression rows, exact (the centres c_i are all rows);
 above,
 ``centres`` Nystroem centres drawn uniformly without replacement with the job's generator
-(as FALKON draws them, ``methods/falkon.py``) and the Nystroem problem
+(as FALKON draws them, ``methods/numerics/falkon.py``) and the Nystroem problem
 min |K_nm beta + Phi theta - y|^2 + lambda beta^T K_mm beta (Phi the linear regressors)
 solved directly (``nystroem_ridge``: ridge on the features K_nm V s^-1/2 with Phi
 projected out, one eigendecomposition per gamma serves every lambda).
@@ -44,7 +44,7 @@ import scipy.linalg
 from threadpoolctl import threadpool_limits
 
 from enginebench.methods.freerun import Envelope, Trajectory
-from enginebench.methods.kernels import gaussian, sq_distances
+from enginebench.methods.numerics.kernels import gaussian, sq_distances
 
 NYSTROEM_RTOL = 1e-10
 """Eigenvalues of K_mm below this fraction of the largest are dropped (Nystroem pseudo-inverse)."""

@@ -52,7 +52,7 @@ from enginebench.declare import listing, whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, SegmentPredictions, split_rows
-from enginebench.methods.kernels import Spectral, check_positive, gaussian, sq_distances
+from enginebench.methods.numerics.kernels import Spectral, check_positive, gaussian, sq_distances
 from enginebench.methods.krls import KRLS, KRLSFitted
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
                                              lag_feature_names, lagged_inputs, memory_ladder, nfir_lags)

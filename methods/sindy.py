@@ -52,7 +52,7 @@ from enginebench.declare import Declaration, Field, Invalid, choice, listing, po
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
-    DERIVATIVE_KINDS, INTEGRATORS, differentiate, library_features, model_rhs, raw_coefficients, simulate_batch,
+    DERIVATIVE_KINDS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
 )
 
 DEFAULT_DERIVATIVE_ALPHA = {"trend_filtered": 1e-3, "kalman": 1.0}

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from enginebench.errors import DataError, EngineBenchError
+from enginebench.errors import DataError
 from enginebench.results.stats import describe
 
 __all__ = [

@@ -1,8 +1,11 @@
-"""The numerics the methods compose: differentiation, fixed-step integration, device choice.
+"""The numerics the methods compose: kernels and their solvers, differentiation, fixed-step integration,
+device choice.
 
 ``derivatives``: regularised (total-variation or Kalman) derivatives of sampled signals,
 windowed for long segments (MoE and SINDy targets). ``integrate``: one batched fixed-step
 integrator (RK4 / Euler) with the divergence envelope every simulating method shares.
-``device``: the CPU/CUDA choice of torch-based solvers. The kernel solvers live beside
-the methods that use them (``methods/kernels.py``, ``shifted.py``, ``falkon.py``).
+``device``: the CPU/CUDA choice of torch-based solvers. ``kernels``: the Gaussian kernel,
+its blocked application and the feature scaling shared by the kernel methods; ``shifted``:
+ridge and shifted-system solutions for a whole grid from one factorisation per gamma
+(KRLS, MTL-KRLS); ``falkon``: the large-scale Nystroem + conjugate-gradient solver.
 """

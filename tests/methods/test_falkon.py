@@ -13,7 +13,7 @@ from sklearn.metrics.pairwise import rbf_kernel
 from threadpoolctl import threadpool_limits
 
 from enginebench.errors import MethodError
-from enginebench.methods.falkon import FalkonSolver, conjugate_gradient, falkon_path
+from enginebench.methods.numerics.falkon import FalkonSolver, conjugate_gradient, falkon_path
 
 
 @pytest.fixture(autouse=True)

@@ -16,7 +16,7 @@ from enginebench.datasets.samples import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.methods.base import grid_points
-from enginebench.methods.kernels import Spectral, gaussian, sq_distances
+from enginebench.methods.numerics.kernels import Spectral, gaussian, sq_distances
 from enginebench.methods.krls import KRLS
 
 RNG = np.random.default_rng(0)
@@ -214,7 +214,7 @@ def test_sq_distances_match_scikit_learn_bit_for_bit() -> None:
 @pytest.mark.parametrize("rows, block", [(700, 256), (256, 256), (5, 256), (0, 256), (301, 7)])
 def test_gaussian_apply_equals_the_whole_kernel_matrix(rows: int, block: int) -> None:
     """The blocked kernel product equals K(X, X_train) @ coef formed whole, 2-D and 1-D coefficients."""
-    from enginebench.methods.kernels import gaussian_apply
+    from enginebench.methods.numerics.kernels import gaussian_apply
 
     rng = np.random.default_rng(rows)
     X, Xt = rng.normal(size=(rows, 6)), rng.normal(size=(120, 6))
@@ -348,7 +348,7 @@ def test_eigendecomposition_falls_back_when_divide_and_conquer_fails(monkeypatch
     """syevd occasionally fails on nearly singular kernel matrices (seen on real data)."""
     import scipy.linalg
 
-    from enginebench.methods.kernels import Spectral
+    from enginebench.methods.numerics.kernels import Spectral
 
     real = scipy.linalg.eigh
     calls = []
@@ -381,7 +381,7 @@ def _drift_problem(n: int, d: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("gamma", [1e-4, 1e-2, 0.1, 1.0, 30.0])
 def test_ridge_routes_agree_with_the_eigendecomposition(gamma: float) -> None:
-    from enginebench.methods.shifted import cholesky_ridge, householder_ridge, lanczos_ridge, ridge_solutions
+    from enginebench.methods.numerics.shifted import cholesky_ridge, householder_ridge, lanczos_ridge, ridge_solutions
 
     X, y = _drift_problem(300, 5, 3)
     K = gaussian(sq_distances(X[:240]), gamma)
@@ -411,7 +411,7 @@ def test_ridge_routes_agree_with_the_eigendecomposition(gamma: float) -> None:
 
 def test_ridge_solutions_uses_every_route_on_the_benchmark_grid() -> None:
     """Across the 41-gamma grid all three routes occur, and each lambda is solved exactly once."""
-    from enginebench.methods.shifted import ridge_solutions
+    from enginebench.methods.numerics.shifted import ridge_solutions
 
     X, y = _drift_problem(400, 8, 0)
     D = sq_distances(X)
@@ -425,7 +425,7 @@ def test_ridge_solutions_uses_every_route_on_the_benchmark_grid() -> None:
 
 
 def test_householder_falls_back_to_the_clipped_spectrum_when_rounding_makes_k_indefinite() -> None:
-    from enginebench.methods.shifted import householder_ridge
+    from enginebench.methods.numerics.shifted import householder_ridge
 
     rng = np.random.default_rng(5)
     V, _ = np.linalg.qr(rng.normal(size=(30, 30)))
@@ -470,7 +470,7 @@ def test_grid_matches_kernel_ridge_per_blocked_fold() -> None:
 def test_standardize_rows_is_the_scalers_transform_bit_for_bit(standardize: bool, extra_cols: int) -> None:
     """The prediction path's standardisation: blocks stacked and [X, extra] scaled in one array, the same
     numbers as StandardScaler.transform(np.hstack([np.vstack(blocks), extra]))."""
-    from enginebench.methods.kernels import make_scaler, standardize_rows
+    from enginebench.methods.numerics.kernels import make_scaler, standardize_rows
 
     rng = np.random.default_rng(3)
     blocks = [rng.normal(5.0, 3.0, (n, 7)) * rng.uniform(0.1, 100, 7) for n in (13, 1, 40)]

@@ -8,9 +8,9 @@ import pytest
 from enginebench.datasets.samples import make_samples
 from enginebench.errors import MethodError
 from enginebench.methods.base import grid_points
-from enginebench.methods.kernels import Spectral
+from enginebench.methods.numerics.kernels import Spectral
 from enginebench.methods.mtl_krls import MTLKRLS, mtl_coefficients, shared_poles
-from enginebench.methods.shifted import shifted_solutions
+from enginebench.methods.numerics.shifted import shifted_solutions
 
 
 def primal_solution(Phi, y, p, lam, theta):
@@ -119,7 +119,7 @@ def toy_samples(toy):
 
 def test_fast_grid_equals_the_eigendecomposition_over_a_wide_grid(toy_samples):
     """predict_grid's partial-fraction path against the closed form in the eigenbasis (9^3 points)."""
-    from enginebench.methods.kernels import gaussian, sq_distances
+    from enginebench.methods.numerics.kernels import gaussian, sq_distances
 
     train, test = toy_samples
     method = MTLKRLS(gamma_grid=(-4, 4, 9), lambda_grid=(-4, 4, 9), theta_grid=(-4, 4, 9))

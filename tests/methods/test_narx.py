@@ -217,7 +217,7 @@ def test_conformance():
 
 
 def test_nystroem_with_every_row_as_a_centre_is_exact_krls():
-    from enginebench.methods.kernels import gaussian, sq_distances
+    from enginebench.methods.numerics.kernels import gaussian, sq_distances
     from enginebench.methods.narx import nystroem_ridge
 
     rng = np.random.default_rng(0)

@@ -1,4 +1,4 @@
-"""Sums of shifted kernel solves (methods/shifted.py): every route against dense solves."""
+"""Sums of shifted kernel solves (methods/numerics/shifted.py): every route against dense solves."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from enginebench.errors import MethodError
-from enginebench.methods.kernels import gaussian, sq_distances
-from enginebench.methods.shifted import shifted_solutions
+from enginebench.methods.numerics.kernels import gaussian, sq_distances
+from enginebench.methods.numerics.shifted import shifted_solutions
 
 
 def _problem(n: int, m: int, gamma: float, seed: int = 0):

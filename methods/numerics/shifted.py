@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 
 from enginebench.errors import MethodError
-from enginebench.methods.kernels import check_positive
+from enginebench.methods.numerics.kernels import check_positive
 
 BACKWARD_ETA = 4 * np.finfo(np.float64).eps
 """Normwise backward error |r| / (|K + mu I| |x| + |b|) accepted from the Krylov solver."""
