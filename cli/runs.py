@@ -67,7 +67,7 @@ def runs_show(run_ref: str, store) -> None:
     plugins = run.plugins() or []
     metrics = run.metrics() if run.job_files() else None  # read first: a damaged job file is the only line printed
     notes = run_note_lines(run)
-    click.echo(f"run {run.id}: {info.get('status')} ({info['finished_jobs'] if 'finished_jobs' in info else len(run.finished_jobs(verify=False))}/{info.get('n_jobs')} jobs, "
+    click.echo(f"run {run.id}: {info.get('status')} ({len(run.job_files())}/{info.get('n_jobs')} jobs, "
                f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
     click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "
                f"mode {cfg.get('mode')}, windows {cfg.get('windows')}; {cfg.get('repetitions')} repetitions, seed {cfg.get('seed')}")

@@ -6,6 +6,7 @@ import os
 import platform
 import subprocess
 import sys
+from datetime import datetime, timezone
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -66,4 +67,17 @@ def capture(seed: int, workers: int) -> dict[str, Any]:
         "packages": {p: _version(p) for p in PACKAGES},
         "git_commit": git_commit(),
         "seed": seed,
+    }
+
+
+def resume_record(workers: int) -> dict[str, Any]:
+    """What finished part of a run after its creation: when, with which code and packages, on how many workers.
+
+    Kept in run.json's ``resumes``, so a run whose parts ran with different code says so
+    (``runs show``) instead of passing for the work of its creation's environment."""
+    return {
+        "at": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "git_commit": git_commit(),
+        "packages": {p: _version(p) for p in PACKAGES},
+        "workers": workers,
     }

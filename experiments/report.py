@@ -146,7 +146,7 @@ def _page(run: Run, summary: pd.DataFrame, metrics_cols: Sequence[str], paired: 
                  f" {esc(str(cfg.get('dataset_variant', '')))}; targets {esc(', '.join(map(str, cfg.get('targets', []))))}; "
                  f"mode {esc(str(cfg.get('mode', '?')))}; {esc(str(cfg.get('repetitions', '?')))} repetitions, seed "
                  f"{esc(str(cfg.get('seed', '?')))}; status {esc(str(info.get('status', '?')))}, "
-                 f"{esc(str(info.get('finished_jobs', len(run.finished_jobs()))))}/{esc(str(info.get('n_jobs', '?')))} jobs, "
+                 f"{len(run.job_files())}/{esc(str(info.get('n_jobs', '?')))} jobs, "
                  f"{esc(str(info.get('failed_jobs', 0)))} failed; created {esc(str(info.get('created', '?')))}</p>\n")
     if interactive:
         parts.append(f"<p>Interactive version (zoomable plots, sortable table): <a href=\"{esc(interactive)}\">"

@@ -293,7 +293,9 @@ def execute(
         todo = jobs
     else:
         todo = [j for j in jobs if j.key not in resume.finished]
-        run.update_info(status="running", resumed=run.info().get("resumed", 0) + 1)
+        info = run.info()
+        run.update_info(status="running", resumed=info.get("resumed", 0) + 1, finished_jobs=len(jobs) - len(todo),
+                        resumes=[*info.get("resumes", []), environment.resume_record(workers)])
     n_failed = 0
     done = len(jobs) - len(todo)
     spill_dir = None

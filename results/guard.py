@@ -162,7 +162,7 @@ def guard_run(run, baseline: dict[str, Any], tolerance: Tolerance = Tolerance(),
     if published_hash and run_hash and run_hash != published_hash:
         warnings.append(f"the dataset differs from the published one (content hash {run_hash[:12]} vs {published_hash[:12]})")
     if info.get("status") != "finished":
-        warnings.append(f"run {run.id} is {info.get('status')} ({info.get('finished_jobs', '?')}/{info.get('n_jobs', '?')} jobs)")
+        warnings.append(f"run {run.id} is {info.get('status')} ({len(run.job_files())}/{info.get('n_jobs', '?')} jobs)")
     if "reproducibility" not in baseline:
         warnings.append("the baseline states no measured reproduction tolerance (published before they were measured): "
                         "last-digit differences of another machine may fail it; republish it with 'enginebench publish'")

@@ -1,9 +1,10 @@
 """What a run's jobs said, as lines for people: each failure reason and warning once, with its count;
-how often each searched hyperparameter was picked at an edge of its grid.
+how often each searched hyperparameter was picked at an edge of its grid; whether parts of the run
+were finished by other code than created it.
 
 ``run_note_lines(run)`` is the one list every view of a run shows (the end of ``run``,
 ``runs show``, ``table``, the static and the interactive report); ``note_lines`` and
-``edge_note_lines`` are its two parts.
+``edge_note_lines`` and ``resume_note_lines`` are its parts.
 """
 
 from __future__ import annotations
@@ -15,6 +16,10 @@ class _NotedRun(Protocol):
     def job_notes(self) -> dict[str, dict[tuple[str, str], int]]: ...
 
     def job_metas(self) -> dict[str, dict[str, Any]]: ...
+
+    def info(self) -> dict[str, Any]: ...
+
+    def environment(self) -> dict[str, Any]: ...
 
 
 def note_lines(notes: dict[str, dict[tuple[str, str], int]]) -> list[str]:
@@ -67,6 +72,28 @@ def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def resume_note_lines(info: dict[str, Any], environment: dict[str, Any]) -> list[str]:
+    """One line per resume (run.json's ``resumes``) whose git commit or package versions differ
+    from the creation's (environment.json), e.g. ``resumed with other code: created with git
+    91da864, resumed 2026-11-26T16:14:30Z with git 307a801 (numpy 2.3.5 -> 2.4.0): jobs of the two
+    parts may differ``. Equal code, or a run never resumed, says nothing."""
+    lines = []
+    made_git, made_packages = environment.get("git_commit"), environment.get("packages") or {}
+    for part in info.get("resumes") or []:
+        if not isinstance(part, dict):
+            continue
+        git = part.get("git_commit")
+        packages = part.get("packages") or {}
+        changed = [f"{name} {made_packages.get(name)} -> {v}" for name, v in sorted(packages.items())
+                   if name in made_packages and made_packages.get(name) != v]
+        if git == made_git and not changed:
+            continue
+        detail = f" ({', '.join(changed)})" if changed else ""
+        lines.append(f"resumed with other code: created with git {str(made_git)[:7]}, resumed {part.get('at', '?')} "
+                     f"with git {str(git)[:7]}{detail}: jobs of the two parts may differ")
+    return lines
+
+
 def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
     """Every note on a stored run's jobs: failure reasons and job warnings with their counts
     (``note_lines``), then the run-level grid-edge notes (``edge_note_lines``).
@@ -82,5 +109,5 @@ def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
         return text if len(text) <= width else text[: width - 3] + "..."
 
     notes = run.job_notes()
-    return (note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
+    return (resume_note_lines(run.info(), run.environment()) + note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
             + edge_note_lines(run.job_metas().values()))

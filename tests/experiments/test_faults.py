@@ -481,3 +481,38 @@ def test_sigterm_stops_a_pool_run_without_running_its_queued_jobs(tmp_path, toy_
                              capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     assert len(list((run.path / "jobs").glob("*.parquet"))) == 16
+
+
+def test_a_run_resumed_by_other_code_says_so_and_counts_its_stored_jobs(toy_parquet, tmp_path, monkeypatch):
+    """A resume records when and with which code it ran; ``runs show`` counts the job files (not a
+    count left in run.json by an earlier part) and names a resume whose git commit differs."""
+    from enginebench.experiments import environment
+
+    store = RunStore(tmp_path / "runs")
+    run = interrupt_after(fault_spec(toy_parquet), store, jobs=2, workers=1)
+    made = run.environment()["git_commit"]
+    monkeypatch.setattr(environment, "git_commit", lambda path=None: "f" * 40)
+
+    def stop_at_four(done, total, job):
+        if done == 4:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(fault_spec(toy_parquet), store, workers=1, resume=run, progress=stop_at_four)
+    (part,) = run.info()["resumes"]
+    assert part["git_commit"] == "f" * 40 and part["workers"] == 1 and part["at"].endswith("Z")
+    out = CliRunner().invoke(cli, ["runs", "show", run.id, "--store", str(store.root)])
+    assert out.exit_code == 0, out.output
+    assert out.output.splitlines()[0].startswith(f"run {run.id}: interrupted (4/6 jobs, ")
+    assert (f"resumed with other code: created with git {str(made)[:7]}, resumed {part['at']} with git fffffff: "
+            "jobs of the two parts may differ") in out.output
+
+
+def test_a_run_resumed_by_the_same_code_has_no_provenance_note(toy_parquet, tmp_path):
+    store = RunStore(tmp_path / "runs")
+    run = interrupt_after(fault_spec(toy_parquet), store, jobs=2, workers=1)
+    run_experiment(fault_spec(toy_parquet), store, workers=1, resume=run)
+    assert len(run.info()["resumes"]) == 1
+    out = CliRunner().invoke(cli, ["runs", "show", run.id, "--store", str(store.root)])
+    assert out.output.splitlines()[0].startswith(f"run {run.id}: finished (6/6 jobs, 0 failed)")
+    assert "resumed with other code" not in out.output

@@ -193,3 +193,16 @@ def test_runs_show_and_both_reports_carry_the_grid_edge_note(narrow_run, tmp_pat
     if plotly_available():
         interactive = write_interactive_report(narrow_run, tmp_path / "rep.html", figures=False).path.read_text()
         assert f"<li class=\"note\">{html.escape(line)}</li>" in interactive
+
+
+def test_resume_note_names_changed_packages_and_commits_only_when_they_differ():
+    from enginebench.results.notes import resume_note_lines
+
+    env = {"git_commit": "a" * 40, "packages": {"numpy": "2.3.5", "scipy": "1.17.1"}}
+    same = {"at": "2026-01-02T03:04:05Z", "git_commit": "a" * 40, "packages": {"numpy": "2.3.5", "scipy": "1.17.1"}}
+    newer = {"at": "2026-01-03T00:00:00Z", "git_commit": "a" * 40, "packages": {"numpy": "2.4.0", "scipy": "1.17.1"}}
+    assert resume_note_lines({}, env) == []
+    assert resume_note_lines({"resumes": [same]}, env) == []
+    assert resume_note_lines({"resumes": [same, newer]}, env) == [
+        "resumed with other code: created with git aaaaaaa, resumed 2026-01-03T00:00:00Z with git aaaaaaa "
+        "(numpy 2.3.5 -> 2.4.0): jobs of the two parts may differ"]
