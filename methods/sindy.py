@@ -40,6 +40,7 @@ recent measured state; without one, from y0 at row 0.
 from __future__ import annotations
 
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass, field, fields
 from typing import Any, Sequence
 
@@ -51,6 +52,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, Field, Invalid, choice, listing, positive, whole
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
+from enginebench.methods.numerics.derivatives import digest
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
     DERIVATIVE_KINDS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
 )
@@ -61,6 +63,12 @@ THRESHOLD_SCALES = ("relative", "absolute")
 DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
 """Default STLSQ threshold grids: relative to each derivative's rms, or seed 003's absolute range."""
 MIN_ROWS = 4
+_PREPARE_OPTIONS = ("derivative", "derivative_chunk", "derivative_margin", "derivative_max_iter", "time_scale",
+                    "envelope")
+"""The options ``SINDy._prepare``'s result depends on (with ``derivative_alpha``): its cache key."""
+PREPARED_CACHE_SIZE = 2
+"""Prepared training sets ``SINDy._prepare`` keeps per process (least recently used dropped first)."""
+_prepared: "OrderedDict[bytes, _Prepared]" = OrderedDict()
 
 
 def _ordered(value: Any) -> Any:
@@ -366,10 +374,31 @@ class SINDy(Method):
         return p
 
     def _prepare(self, train: Samples) -> _Prepared:
-        """Standardise the training segments and differentiate each one."""
+        """Standardise the training segments and differentiate each one, once per process for the same
+        training data and settings: a job's final fit reuses what its grid search prepared (the
+        total-variation derivatives of full-size training data take minutes). The kept arrays
+        are read-only, so no fit can change what a later one reads."""
         self.check_mode(train.mode)
         if not train.has_targets:
             raise MethodError("sindy: training samples carry no targets")
+        key = digest(
+            [a for s in train.segments for a in (s.y, s.U, s.t, np.asarray(s.rows, dtype=np.float64))],
+            (tuple(train.target_names), tuple(train.input_names), [len(s.rows) for s in train.segments],
+             [s.id for s in train.segments], sorted((k, repr(self.options[k])) for k in _PREPARE_OPTIONS),
+             self.derivative_alpha),
+        )
+        if key in _prepared:
+            _prepared.move_to_end(key)
+            return _prepared[key]
+        prep = self._prepare_uncached(train)
+        for a in (*prep.x, *(prep.u or []), *prep.t, *prep.x_dot):
+            a.flags.writeable = False
+        _prepared[key] = prep
+        while len(_prepared) > PREPARED_CACHE_SIZE:
+            _prepared.popitem(last=False)
+        return prep
+
+    def _prepare_uncached(self, train: Samples) -> _Prepared:
         notes: list[str] = []
         segs = []
         for s in train.segments:

@@ -179,15 +179,21 @@ CACHE_SIZE = 4
 _cache: OrderedDict[bytes, list[np.ndarray]] = OrderedDict()
 
 
-def _cache_key(ys: Sequence[np.ndarray], ts: Sequence[np.ndarray], alpha: float, kwargs: dict[str, Any]) -> bytes:
-    """A digest of the signals, times (values and shapes) and every setting that changes the result."""
+def digest(arrays: Sequence[np.ndarray], settings: Any) -> bytes:
+    """A key for results computed from ``arrays`` (values and shapes, as float64) and ``settings``
+    (anything whose repr names every setting that changes the result)."""
     h = hashlib.blake2b(digest_size=20)
-    h.update(repr((float(alpha), sorted(kwargs.items()), len(ys))).encode())
-    for a in (*ys, *ts):
+    h.update(repr((settings, len(arrays))).encode())
+    for a in arrays:
         a = np.ascontiguousarray(a, dtype=np.float64)
         h.update(repr(a.shape).encode())
         h.update(memoryview(a).cast("B"))
     return h.digest()
+
+
+def _cache_key(ys: Sequence[np.ndarray], ts: Sequence[np.ndarray], alpha: float, kwargs: dict[str, Any]) -> bytes:
+    """A digest of the signals, times (values and shapes) and every setting that changes the result."""
+    return digest([*ys, *ts], (float(alpha), sorted(kwargs.items()), len(ys)))
 
 
 def clear_cache() -> None:

@@ -466,3 +466,37 @@ def test_default_grid_keeps_a_term_where_the_library_explains_little():
     plain = SINDy(derivative="kalman", threshold_scale="absolute")  # the same cut at 0.5 x rms empties it
     rms = top[0].derivative_rms[0]
     assert plain.describe(plain.fit(data, {"degree": 1, "threshold": 0.5 * rms, "alpha": 1e-4}, RNG))["term_count"] == 0
+
+
+def test_the_final_fit_reuses_the_grid_searchs_derivatives_and_equals_a_fresh_one(monkeypatch):
+    """A job differentiates its training data once (the grid search), not again for the final fit:
+    the prepared set is kept per process; a fit from it equals a fit computed afresh, and
+    other data or another derivative setting is differentiated anew."""
+    import enginebench.methods.sindy as sindy_module
+
+    calls = []
+    real = sindy_module.differentiate
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sindy_module, "differentiate", counting)
+    sindy_module._prepared.clear()
+    m = SINDy(derivative="kalman", degrees=(1,), n_thresholds=2, n_alphas=1)
+    grid = grid_points(m.search_space(LINEAR))
+    test = replace(LINEAR, segments=LINEAR.segments[:2]).without_targets()
+    m.predict_grid(LINEAR, test, grid, RNG)
+    per_training_set = len(calls)
+    assert per_training_set == len(LINEAR.segments)  # one differentiation per segment
+    kept = m.fit(LINEAR, grid[0], RNG)
+    assert len(calls) == per_training_set  # the final fit reused them
+    sindy_module._prepared.clear()
+    fresh = m.fit(LINEAR, grid[0], RNG)
+    assert len(calls) == 2 * per_training_set
+    np.testing.assert_array_equal(kept.coef, fresh.coef)
+    np.testing.assert_array_equal(np.concatenate(m.predict(kept, test)), np.concatenate(m.predict(fresh, test)))
+    SINDy(derivative="kalman", derivative_alpha=2.0, degrees=(1,)).fit(LINEAR, grid[0], RNG)
+    m.fit(QUADRATIC, grid[0], RNG)
+    assert len(calls) == 2 * per_training_set + len(LINEAR.segments) + len(QUADRATIC.segments)
+    assert not m._prepare(LINEAR).x_dot[0].flags.writeable  # what a later fit reads cannot be changed
