@@ -64,10 +64,14 @@ def capture(seed: int, workers: int) -> dict[str, Any]:
         "cpu_count": os.cpu_count(),
         "gpu": gpu(),
         "workers": workers,
-        "packages": {p: _version(p) for p in PACKAGES},
-        "git_commit": git_commit(),
+        **software(),
         "seed": seed,
     }
+
+
+def software() -> dict[str, Any]:
+    """The code that runs: package versions and the git commit (recorded at creation and at each resume)."""
+    return {"packages": {p: _version(p) for p in PACKAGES}, "git_commit": git_commit()}
 
 
 def resume_record(workers: int) -> dict[str, Any]:
@@ -77,7 +81,6 @@ def resume_record(workers: int) -> dict[str, Any]:
     (``runs show``) instead of passing for the work of its creation's environment."""
     return {
         "at": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "git_commit": git_commit(),
-        "packages": {p: _version(p) for p in PACKAGES},
+        **software(),
         "workers": workers,
     }
