@@ -259,14 +259,18 @@ def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, met
         rng = method_rng(spec, job)
         t0 = time.perf_counter()
         validation = problem.parts["validation"].materialize() if "validation" in problem.parts else None
-        params, search = select(method, train, spec.selection, rng, validation, spec.init_samples)
+        fit_on = refit_samples(spec, problem, train, job.repetition, job.split)
+        params, search = select(method, train, spec.selection, rng, validation, spec.init_samples,
+                                keep_fitted=fit_on is train)
         timings["select_s"] = time.perf_counter() - t0
         table = search.pop("table", None)
         if table is not None:  # the store writes it as the job's selection file (Run.write_job)
             meta[SELECTION_META] = selection_frame(table.frame(), job)
         t0 = time.perf_counter()
-        fit_on = refit_samples(spec, problem, train, job.repetition, job.split)
-        fitted = method.fit(fit_on, params, rng)
+        fitted = search.pop("fitted", None)
+        meta["tested_selected_model"] = fitted is not None
+        if fitted is None:
+            fitted = method.fit(fit_on, params, rng)
         timings["fit_s"] = time.perf_counter() - t0
         scale = mean_abs(fit_on.y)  # exact-scaled: no overflow near 1e308
         described = method.describe(fitted)

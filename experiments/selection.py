@@ -193,8 +193,38 @@ class SelectionTable:
         return pd.DataFrame(out)
 
 
+def keeps_models(method: Method) -> bool:
+    """Whether selection can keep a method's fitted models: it predicts through ``fit_grid``
+    (``predict_grid`` not overridden), so each scored model exists as an object."""
+    return type(method).predict_grid is Method.predict_grid
+
+
+class BestModel:
+    """Scores each model of ``fit_grid`` as it comes and keeps the best so far (lowest score, first on ties)."""
+
+    def __init__(self) -> None:
+        self.index: int | None = None
+        self.score = np.inf
+        self.fitted: Any = None
+
+    def scores(self, method: Method, fit_part: Samples, val_part: Samples, points: list[dict[str, Any]],
+               rng: np.random.Generator, criterion: str, offset: int) -> np.ndarray:
+        """The criterion of every point (``offset``: the points' first index in the whole search)."""
+        view = val_part.without_targets()
+        out = np.full(len(points), np.nan)
+        for i, fitted in method.fit_grid(fit_part, points, rng):
+            out[i] = grid_scores(np.concatenate(method.predict(fitted, view))[None], val_part, criterion)[0]
+            if out[i] < self.score or (self.index is not None and out[i] == self.score and offset + i < self.index):
+                self.index, self.score, self.fitted = offset + i, out[i], fitted
+        if np.isnan(out).any():
+            raise MethodError(f"method {method.name!r}: fit_grid yielded no model for grid point(s) "
+                              f"{[i for i in range(len(points)) if np.isnan(out[i])]}")
+        return out
+
+
 def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator,
-           validation: Samples | None = None, init_samples: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
+           validation: Samples | None = None, init_samples: int = 0,
+           keep_fitted: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
     """The best grid point for ``method`` on ``train`` and a record of the search.
 
     ``selection.kind == "validation"`` fits on all of ``train`` and scores on the split's
@@ -207,6 +237,11 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     None), and holds the scores of every grid point on
     every resample or fold under ``table`` (a :class:`SelectionTable`; absent when
     nothing was scored: an empty or one-point grid, ``kind = "none"``).
+
+    ``keep_fitted`` (a validation selection whose model is not refitted): the selected
+    point's model, fitted on ``train`` and scored on the validation part, is returned under
+    ``fitted``, so the model tested is the model selected (for methods that predict
+    through ``fit_grid``; the record has no ``fitted`` otherwise, and the caller fits).
 
     ``selection.search`` "random" or "bayes" tries ``selection.trials`` points over the ranges
     the grid spans instead (``experiments/search.py``), on the same resamples or folds (drawn
@@ -232,11 +267,18 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     if not parts:
         raise MethodError(f"model selection for {method.name!r}: no usable resample (training set of {len(train)} rows)")
 
+    keeper = BestModel() if keep_fitted and selection.kind == "validation" and keeps_models(method) else None
+    evaluated = [0]
+
     def evaluate(points: list[dict[str, Any]]) -> np.ndarray:
         scores = np.empty((len(points), len(parts)))
         for j, (fit_part, val_part) in enumerate(parts):
-            preds = method.predict_grid(fit_part, val_part.without_targets(), points, rng)
-            scores[:, j] = grid_scores(preds, val_part, selection.criterion)
+            if keeper is not None:
+                scores[:, j] = keeper.scores(method, fit_part, val_part, points, rng, selection.criterion, evaluated[0])
+            else:
+                preds = method.predict_grid(fit_part, val_part.without_targets(), points, rng)
+                scores[:, j] = grid_scores(preds, val_part, selection.criterion)
+        evaluated[0] += len(points)
         return scores
 
     if selection.search == "grid":
@@ -263,6 +305,8 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
               "grid_edges": edges, "table": SelectionTable(grid, scores, selection.criterion, best)}
     if selection.search != "grid":
         record["search"] = selection.search
+    if keeper is not None and keeper.index == best:
+        record["fitted"] = keeper.fitted
     if warnings:
         record["warnings"] = warnings
     return grid[best], record

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import replace
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, ClassVar, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -135,18 +135,34 @@ class Method:
         """
         return {}
 
+    def fit_grid(
+        self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> Iterator[tuple[int, Any]]:
+        """Fitted models of the grid points as ``(index in grid, fitted)``, each point once, in any order.
+
+        The default fits each point in turn. A method whose points share a fit overrides it
+        (one training run checkpointed at several epoch counts yields a model per count);
+        the fitted models must equal what ``fit`` would return for each point given the
+        same draws. Model selection predicts and scores each model as it comes and keeps
+        the best, so that with ``refit = false`` the model selected is the model tested.
+        """
+        for i, params in enumerate(grid):
+            yield i, self.fit(train, params, rng)
+
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> np.ndarray:
         """Predictions of ``data`` for every grid point, shape (n_grid, n_rows, n_targets).
 
-        The default fits each point in turn; methods that share work across the grid
-        (one eigendecomposition for all regularisation values) override it.
+        The default predicts each model of ``fit_grid``; methods that share work across the
+        grid's predictions (one eigendecomposition for all regularisation values) override it.
         """
-        out = []
-        for params in grid:
-            fitted = self.fit(train, params, rng)
-            out.append(np.concatenate(self.predict(fitted, data)))
+        out: list[np.ndarray | None] = [None] * len(grid)
+        for i, fitted in self.fit_grid(train, grid, rng):
+            out[i] = np.concatenate(self.predict(fitted, data))
+        missing = [i for i, o in enumerate(out) if o is None]
+        if missing:
+            raise MethodError(f"method {self.name!r}: fit_grid yielded no model for grid point(s) {missing}")
         return np.stack(out)
 
     def check_mode(self, mode: str) -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -10,9 +10,9 @@ from enginebench.datasets.samples import Samples
 from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.moe.explain import describe, gate_weights
 from enginebench.methods.moe.fitted import MoEFitted
-from enginebench.methods.moe.options import OPTIONS, search_space
+from enginebench.methods.moe.options import OPTIONS, resolve_params, search_space
 from enginebench.methods.moe.simulation import simulate
-from enginebench.methods.moe.training import fit_mixture
+from enginebench.methods.moe.training import fit_mixture, fit_mixture_path
 
 
 class MoE(Method):
@@ -34,6 +34,24 @@ class MoE(Method):
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MoEFitted:
         self.check_mode(train.mode)
         return fit_mixture(train, params, self.options, rng)
+
+    def fit_grid(self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
+                 ) -> Iterator[tuple[int, MoEFitted]]:
+        """Points that differ only in ``epochs`` share one training run, packed at each epoch count (in
+        grid order of their first point): an ``epochs_grid`` of several values is early stopping chosen
+        on the validation simulation error, for the price of the longest run."""
+        runs: dict[tuple[Any, ...], list[int]] = {}
+        for i, params in enumerate(grid):
+            key = tuple(sorted((k, v) for k, v in resolve_params(params).items() if k != "epochs"))
+            runs.setdefault(key, []).append(i)
+        for members in runs.values():
+            by_epochs: dict[int, list[int]] = {}
+            for i in members:
+                by_epochs.setdefault(resolve_params(grid[i])["epochs"], []).append(i)
+            path = fit_mixture_path(train, grid[members[0]], self.options, rng, sorted(by_epochs))
+            for fitted in path:
+                for i in by_epochs[fitted.params["epochs"]]:
+                    yield i, fitted
 
     def predict(self, fitted: MoEFitted, data: Samples) -> SegmentPredictions:
         self.check_mode(data.mode)

@@ -3,7 +3,7 @@ least-squares warm start; optionally plus the open-loop simulation error of shor
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -26,11 +26,27 @@ def fit_mixture(
 
     ``fused=False`` trains on the former per-step loop (``_train``'s reference path, for benchmarks)."""
     hp = resolve_params(params)
+    return fit_mixture_path(train, params, o, rng, [hp["epochs"]], fused)[0]
+
+
+def fit_mixture_path(
+    train: Samples, params: Mapping[str, Any], o: Mapping[str, Any], rng: np.random.Generator,
+    checkpoints: Sequence[int], fused: bool = True,
+) -> list[MoEFitted]:
+    """One training run of ``params`` packed after each number of epochs in ``checkpoints`` (ascending).
+
+    The model after e epochs is the model ``fit_mixture`` returns for ``epochs = e`` with the same
+    draws (``rng`` gives the torch seed, then the probe points, before training), so model selection
+    scores several epoch counts of one run: early stopping chosen on the validation simulation error.
+    """
+    hp = resolve_params({**params, "epochs": max(checkpoints)})
     p = prepare(train, o)
     sign, d_scale, V, X = p.sign, p.stats["d_scale"], p.V, p.X
     margin = margin_matrix(o["max_time_constant"], sign, d_scale, train.target_names)
     device, dtype = resolve_device(o["device"], "method 'moe'"), torch_dtype(o["dtype"])
     gen = torch.Generator().manual_seed(int(rng.integers(0, 2**63 - 1)))
+    n_probe = min(o["probe_points"], len(V))
+    probe = V[np.sort(rng.choice(len(V), size=n_probe, replace=False))]
     net = MixtureOfExperts(
         V.shape[1], len(train.target_names), X.shape[1], hp["n_experts"], o["expert_hidden"], hp["gate_hidden"],
         torch.as_tensor(sign), hp["k"], gen, dtype, torch.as_tensor(margin),
@@ -39,6 +55,23 @@ def fit_mixture(
     warm_start(net, theta, sign, hp["k"], margin)
     init_info: dict[str, Any] = {"init": "lstsq", "theta": theta.tolist()}
     net = net.to(device)
+    packed: list[MoEFitted] = []
+
+    def pack(history: list[float]) -> None:
+        if not np.isfinite(history[-1]):
+            raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or "
+                              "check the data")
+        weights = {k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()}
+        if o["clip_schedulers"]:
+            weights["v_lo"] = V.min(0).astype(weights["v_lo"].dtype)
+            weights["v_hi"] = V.max(0).astype(weights["v_hi"].dtype)
+        packed.append(MoEFitted(
+            params={**hp, "epochs": len(history)}, options=dict(o), input_names=tuple(train.input_names),
+            target_names=tuple(train.target_names), scheduler_inputs=tuple(p.scheduler_inputs),
+            expert_inputs=tuple(p.expert_inputs), sign=sign, **p.stats, weights=weights, probe=probe,
+            loss_history=list(history), derived=p.derived, init_info=init_info,
+        ))
+
     with cpu_threads(o["cpu_threads"], device):
         shoot = None
         if o["sim_weight"] > 0:
@@ -48,19 +81,10 @@ def fit_mixture(
                     "(quasi-LPV) model is not supported: set scheduler_state=False or sim_weight=0"
                 )
             shoot = _Shooting(p.Us, p.Z, p.T, o["shooting_window"], p.si, p.ei, d_scale)
-        history = _train(net, V, X, p.D, hp, o, gen, device, dtype, shoot, fused=fused,
-                         compile=bool(o.get("compile", True)))
-    if o["clip_schedulers"]:
-        net.v_lo.copy_(torch.as_tensor(V.min(0), dtype=dtype))
-        net.v_hi.copy_(torch.as_tensor(V.max(0), dtype=dtype))
-    n_probe = min(o["probe_points"], len(V))
-    probe = V[np.sort(rng.choice(len(V), size=n_probe, replace=False))]
-    return MoEFitted(
-        params=hp, options=dict(o), input_names=tuple(train.input_names), target_names=tuple(train.target_names),
-        scheduler_inputs=tuple(p.scheduler_inputs), expert_inputs=tuple(p.expert_inputs), sign=sign, **p.stats,
-        weights={k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()},
-        probe=probe, loss_history=history, derived=p.derived, init_info=init_info,
-    )
+        _train(net, V, X, p.D, hp, o, gen, device, dtype, shoot, fused=fused, compile=bool(o.get("compile", True)),
+               checkpoints={int(e): pack for e in checkpoints})
+    net.eval()
+    return packed
 
 
 class _Shooting:
@@ -138,7 +162,7 @@ def compiled_step_loss() -> Any:
 def _train(
     net: MixtureOfExperts, V: np.ndarray, X: np.ndarray, D: np.ndarray, hp: dict[str, Any], o: dict[str, Any],
     gen: torch.Generator, device: torch.device, dtype: torch.dtype, shoot: _Shooting | None = None,
-    fused: bool = True, compile: bool = False,
+    fused: bool = True, compile: bool = False, checkpoints: Mapping[int, Callable[[list[float]], None]] | None = None,
 ) -> list[float]:
     """Adam on seed 003's loss with shuffled minibatches; returns the mean loss per epoch.
 
@@ -153,7 +177,9 @@ def _train(
     as with ``fused=False`` (the former loop, kept as the reference for tests and benchmarks).
     ``compile`` runs each step's loss through torch.compile when the fit has at least
     ``COMPILE_MIN_STEPS`` steps (not bitwise equal to eager: the compiled kernels sum in another
-    order); where torch.compile is missing or fails, the step runs eagerly.
+    order); where torch.compile is missing or fails, the step runs eagerly. ``checkpoints``: epoch
+    count -> a function called with the history after that epoch (``fit_mixture_path`` packs the
+    model there); training stops after the last checkpoint's epoch when it comes before ``epochs``.
     """
     Vt, Xt, Dt = (torch.as_tensor(a, dtype=dtype, device=device) for a in (V, X, D))
     opt = torch.optim.Adam(net.parameters(), lr=hp["lr"])
@@ -165,9 +191,11 @@ def _train(
     loss_fn = step_loss
     if compile and fused and n_steps * hp["epochs"] >= COMPILE_MIN_STEPS:
         loss_fn = compiled_step_loss() or step_loss
-    history = []
+    history: list[float] = []
+    checkpoints = dict(checkpoints or {})
+    last = max(checkpoints, default=hp["epochs"])
     net.train()
-    for _ in range(hp["epochs"]):
+    for _ in range(min(hp["epochs"], last)):
         perm = torch.randperm(n, generator=gen).to(device)
         if shoot is not None:
             Uw, Hw, Zw = (torch.as_tensor(a, dtype=dtype, device=device) for a in shoot.cut(gen))
@@ -207,6 +235,8 @@ def _train(
             opt.step()
             total += loss.detach() * len(v)
         history.append(float(total) / n)
+        if len(history) in checkpoints:
+            checkpoints[len(history)](history)
     net.eval()
     if not np.isfinite(history[-1]):
         raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or check the data")

@@ -251,6 +251,9 @@ def test_refit_after_validation_selection_uses_the_validation_part(recs_file, tm
     assert val_preds and all(p["y_init"] == [(5, 1)] for p in val_preds)  # validation scored after its init window
     meta = run.job_meta(run.job_files()[0].stem)
     assert meta["n_train"] == sum(rows) and meta["refit_on_validation"] is refit
+    # refit = false tests the model the selection scored (one fit per grid point, none after)
+    assert meta["tested_selected_model"] is (not refit)
+    assert len(fits) == meta["search"]["grid_size"] + (1 if refit else 0) == 3 + (1 if refit else 0)
 
 
 # -- warnings and failures -------------------------------------------------------------------------

@@ -138,3 +138,49 @@ def test_the_record_names_the_option_that_sets_each_grid(toy):
     assert edges["gamma"]["option"] == "gamma_grid" and edges["lambda"]["option"] == "lambda_grid"
     assert edges["gamma"]["edge"] == "upper" and edges["gamma"]["upper"] == pytest.approx(1e-3)
     assert any(w.startswith("krls: gamma = 0.001 selected at the upper edge") for w in record["warnings"])
+
+
+def _noisy_mean_method():
+    """A stochastic toy method: the training mean plus a random offset scaled by ``s`` (each fit draws anew)."""
+    from enginebench.methods.base import Method
+
+    class Noisy(Method):
+        name, family, modes = "noisy", "baseline", frozenset({"static", "window", "simulation"})
+
+        def search_space(self, data):
+            return {"s": np.array([0.5, 1.0, 2.0])}
+
+        def fit(self, train, params, rng):
+            return float(train.y.mean()) + params["s"] * rng.normal()
+
+        def predict(self, fitted, data):
+            return [np.full((len(s.rows), 1), fitted) for s in data.segments]
+
+    return Noisy()
+
+
+def test_keep_fitted_returns_the_scored_model_of_the_selected_point(toy):
+    train = make_samples(toy.select_segments(["s0", "s1"]), ["y"])
+    val = make_samples(toy.select_segments(["s2"]), ["y"])
+    method = _noisy_mean_method()
+    params, record = select(method, train, Selection(kind="validation"), np.random.default_rng(4), val,
+                            keep_fitted=True)
+    fitted = record["fitted"]
+    # the kept model scores the selected point's validation score exactly, and it is the draw of that point
+    assert np.abs(val.y - fitted).mean() == record["best_score"]
+    rng = np.random.default_rng(4)
+    draws = [float(train.y.mean()) + s * rng.normal() for s in (0.5, 1.0, 2.0)]
+    assert fitted == draws[[0.5, 1.0, 2.0].index(params["s"])]
+    # the same selection without keeping picks the same point and keeps nothing
+    again, plain = select(method, train, Selection(kind="validation"), np.random.default_rng(4), val)
+    assert again == params and plain["best_score"] == record["best_score"] and "fitted" not in plain
+
+
+def test_keep_fitted_only_for_a_validation_selection_through_fit_grid(toy):
+    train = make_samples(toy.select_segments(["s0", "s1"]), ["y"])
+    val = make_samples(toy.select_segments(["s2"]), ["y"])
+    _, boot = select(_noisy_mean_method(), train, Selection(resamples=3), np.random.default_rng(0), keep_fitted=True)
+    assert "fitted" not in boot  # resampled fits are not fitted on the whole training part
+    krls = KRLS(gamma_grid=(-2, 0, 3), lambda_grid=(-3, -1, 3))  # overrides predict_grid: no models to keep
+    _, shared = select(krls, train, Selection(kind="validation"), np.random.default_rng(0), val, keep_fitted=True)
+    assert "fitted" not in shared

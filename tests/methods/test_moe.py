@@ -549,3 +549,26 @@ def test_schedulers_are_held_at_the_edge_of_their_training_range(model):
     free.weights["v_lo"] = np.full_like(free.weights["v_lo"], -np.inf)
     free.weights["v_hi"] = np.full_like(free.weights["v_hi"], np.inf)
     assert not np.allclose(local_coefficients(free, np.array([[25.0]]))["A"], inside["A"], rtol=1e-3)
+
+
+# -- epochs as early stopping: one training run checkpointed -----------------------------------------
+def test_fit_grid_checkpoints_equal_separate_fits_of_each_epoch_count(train, test_data):
+    method = MoE(scheduler=["v"], batch_size=256, device="cpu", sim_weight=1.0, shooting_window=20.0)
+    grid = [{"n_experts": 2, "epochs": e, "lr": lr} for lr in (1e-2, 3e-2) for e in (6, 2, 4)]
+    got = dict(method.fit_grid(train, grid, np.random.default_rng(5)))
+    assert sorted(got) == list(range(6))
+    rng = np.random.default_rng(5)  # two training runs: each lr's run draws its seed and probe once
+    for run in ([0, 1, 2], [3, 4, 5]):
+        state = rng.bit_generator.state
+        for i in run:
+            rng.bit_generator.state = state
+            alone = method.fit(train, grid[i], rng)
+            assert got[i].params == alone.params and got[i].loss_history == alone.loss_history
+            assert len(alone.loss_history) == grid[i]["epochs"]
+            for name, w in alone.weights.items():
+                assert np.array_equal(got[i].weights[name], w), name
+            assert np.array_equal(got[i].probe, alone.probe)
+    # the longer run goes on from the shorter one's model: its first epochs' losses are the same
+    assert got[0].loss_history[:2] == got[1].loss_history
+    view = test_data.without_targets()
+    assert not np.allclose(np.concatenate(method.predict(got[0], view)), np.concatenate(method.predict(got[1], view)))
