@@ -42,7 +42,7 @@ from __future__ import annotations
 import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field, fields
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 import pysindy as ps
@@ -297,16 +297,13 @@ class SINDy(Method):
                   for tr, s, a in zip(trajs, data.segments, starts)]
         return SegmentPredictions(arrays, diverged)
 
-    def predict_grid(
-        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
-    ) -> np.ndarray:
+    def fit_grid(
+        self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> Iterator[tuple[int, SINDyFit]]:
         """Every grid point shares one standardisation and one differentiation of the training data."""
         prepared = self._prepare(train)
-        out = []
-        for params in grid:
-            fitted = self._fit_prepared(prepared, train, params)
-            out.append(np.concatenate(self.predict(fitted, data)))
-        return np.stack(out)
+        for i, params in enumerate(grid):
+            yield i, self._fit_prepared(prepared, train, params)
 
     def describe(self, fitted: SINDyFit) -> dict[str, Any]:
         """Equations (standardised and in raw units), term count and the selected parameters."""
