@@ -193,12 +193,6 @@ class SelectionTable:
         return pd.DataFrame(out)
 
 
-def keeps_models(method: Method) -> bool:
-    """Whether selection can keep a method's fitted models: it predicts through ``fit_grid``
-    (``predict_grid`` not overridden), so each scored model exists as an object."""
-    return type(method).predict_grid is Method.predict_grid
-
-
 class BestModel:
     """Scores each model of ``fit_grid`` as it comes and keeps the best so far (lowest score, first on ties)."""
 
@@ -267,7 +261,7 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     if not parts:
         raise MethodError(f"model selection for {method.name!r}: no usable resample (training set of {len(train)} rows)")
 
-    keeper = BestModel() if keep_fitted and selection.kind == "validation" and keeps_models(method) else None
+    keeper = BestModel() if keep_fitted and selection.kind == "validation" and method.keeps_grid_models() else None
     evaluated = [0]
 
     def evaluate(points: list[dict[str, Any]]) -> np.ndarray:

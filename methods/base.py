@@ -149,6 +149,11 @@ class Method:
         for i, params in enumerate(grid):
             yield i, self.fit(train, params, rng)
 
+    def keeps_grid_models(self) -> bool:
+        """Whether ``predict_grid`` predicts the models of ``fit_grid``, so that model selection may
+        score them one by one and keep the one it selects: true unless ``predict_grid`` is overridden."""
+        return type(self).predict_grid is Method.predict_grid
+
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> np.ndarray:

@@ -41,7 +41,7 @@ the initial-value estimate, the holdout search, the fitted records) are
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Sequence
+from typing import Any, ClassVar, Iterator, Sequence
 
 import numpy as np
 
@@ -249,15 +249,38 @@ class Cascade(Method):
                              source=self.options["source"], intermediates=self.intermediates)
 
     def predict(self, fitted: CascadeFitted, data: Samples) -> SegmentPredictions:
-        down_data, up_diverged = self._prepare_eval(fitted.upstreams, data)
+        # the models of one fit_grid share their upstreams: their signals on ``data`` are computed once
+        if fitted.shared.get("data") is data:
+            down_data, up_diverged = fitted.shared["prepared"]
+        else:
+            down_data, up_diverged = self._prepare_eval(fitted.upstreams, data)
+            fitted.shared.update(data=data, prepared=(down_data, up_diverged))
         preds = fitted.downstream.predict(fitted.fitted, down_data)
         diverged = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), bool))) | up_diverged
         return SegmentPredictions(list(preds), diverged)
 
+    def keeps_grid_models(self) -> bool:
+        """As the downstream method: the cascade's grid is the downstream's."""
+        return self.down_cls(**dict(self.options["downstream_options"])).keeps_grid_models()
+
+    def fit_grid(self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
+                 ) -> Iterator[tuple[int, CascadeFitted]]:
+        """The upstream is fitted once; the downstream's own ``fit_grid`` covers the grid (MoE: one
+        training run per point apart from epochs)."""
+        ups, down_train = self._prepare_train(train, rng)
+        down = self._downstream(train.target_names, self.intermediates[0])
+        shared: dict[str, Any] = {}
+        for i, fitted in down.fit_grid(down_train, grid, rng):
+            yield i, CascadeFitted(upstreams=ups, downstream=down, fitted=fitted, down_inputs=down_train.input_names,
+                                   source=self.options["source"], intermediates=self.intermediates, shared=shared)
+
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> np.ndarray:
-        """The upstream is fitted once; the downstream's own ``predict_grid`` covers the grid."""
+        """The upstream is fitted once; the downstream's own ``predict_grid`` covers the grid (or, where the
+        downstream predicts through ``fit_grid``, this cascade's ``fit_grid``)."""
+        if self.keeps_grid_models():
+            return Method.predict_grid(self, train, data, grid, rng)
         ups, down_train = self._prepare_train(train, rng)
         down_data, _ = self._prepare_eval(ups, data)
         down = self._downstream(train.target_names, self.intermediates[0])

@@ -13,7 +13,7 @@ segment-averaged MAE (``segment_mae``). The Cascade method and its presets are
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -132,6 +132,12 @@ class CascadeFitted:
     down_inputs: tuple[str, ...]
     source: str
     intermediates: tuple[str, ...]
+    shared: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    """Kept between the models of one grid, which share their upstreams: the last evaluated data and
+    its downstream samples (``Cascade.predict``); never pickled."""
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "shared": {}}
 
 
 def upstream_signals(ups: Sequence[UpstreamFitted], data: Samples, owner: str

@@ -238,3 +238,25 @@ def test_moe_nfir_constrains_the_intermediate_positive_and_exposes_gates(interna
     np.testing.assert_allclose(np.concatenate(gates).sum(axis=1), 1.0, rtol=1e-5)
     w_hat = c.intermediate_predictions(fitted, test.without_targets())["w"]
     assert [len(w) for w in w_hat] == [len(s) for s in test.segments]
+
+
+def test_a_moe_downstream_grid_shares_the_upstream_and_one_training_run_per_point(internal):
+    import pickle
+
+    train, test = internal
+    c = MoENFIR(intermediate="w", upstream_params=NF, downstream_options={"cpu_threads": 1})
+    assert c.keeps_grid_models() and not nfir_cascade().keeps_grid_models()
+    hp = {"n_experts": 2, "beta1": 1.0, "beta2": 1.0, "k": 1.0, "gate_hidden": 4, "lr": 1e-2}
+    grid = [{**hp, "epochs": 3}, {**hp, "epochs": 1}]
+    view = test.without_targets()
+    models = dict(c.fit_grid(train, grid, np.random.default_rng(0)))
+    assert models[0].upstreams is models[1].upstreams  # the upstream NFIR is fitted once for the grid
+    assert [len(models[i].fitted.loss_history) for i in (0, 1)] == [3, 1]
+    assert models[1].fitted.loss_history == models[0].fitted.loss_history[:1]  # one run, packed after 1 and 3 epochs
+    out = c.predict_grid(train, view, grid, np.random.default_rng(0))
+    for i, params in enumerate(grid):  # each point as a fit of its own from the same draws
+        alone = c.fit(train, params, np.random.default_rng(0))
+        np.testing.assert_array_equal(out[i], np.concatenate(c.predict(alone, view)))
+    shared = models[0]
+    c.predict(shared, view)
+    assert shared.shared["data"] is view and pickle.loads(pickle.dumps(shared)).shared == {}
