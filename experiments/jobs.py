@@ -140,7 +140,9 @@ def refit_stored_job(ctx: Context, job: Job, meta: dict[str, Any], train: Sample
     """Fit a stored job's method again on ``train`` with the hyperparameters the job selected.
 
     For figures and reports: a deterministic method reproduces the job's model exactly
-    (selection is not replayed). MethodError when the job failed in the run.
+    (selection is not replayed). A random one (MoE) does not: with ``refit = false`` the job
+    tested the selection's own model, drawn after the grid's earlier points, and this fit
+    draws afresh. MethodError when the job failed in the run.
     """
     if meta.get("status") != "ok":
         raise MethodError(f"repetition {job.repetition} failed in the run ({meta.get('reason', '?')})")
