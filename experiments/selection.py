@@ -210,9 +210,7 @@ class BestModel:
             out[i] = grid_scores(np.concatenate(method.predict(fitted, view))[None], val_part, criterion)[0]
             if out[i] < self.score or (self.index is not None and out[i] == self.score and offset + i < self.index):
                 self.index, self.score, self.fitted = offset + i, out[i], fitted
-        if np.isnan(out).any():
-            raise MethodError(f"method {method.name!r}: fit_grid yielded no model for grid point(s) "
-                              f"{[i for i in range(len(points)) if np.isnan(out[i])]}")
+        method.check_grid_covered(~np.isnan(out))
         return out
 
 

@@ -165,10 +165,14 @@ class Method:
         out: list[np.ndarray | None] = [None] * len(grid)
         for i, fitted in self.fit_grid(train, grid, rng):
             out[i] = np.concatenate(self.predict(fitted, data))
-        missing = [i for i, o in enumerate(out) if o is None]
+        self.check_grid_covered([o is not None for o in out])
+        return np.stack(out)
+
+    def check_grid_covered(self, covered: Sequence[bool]) -> None:
+        """MethodError naming the grid points that ``fit_grid`` yielded no model for."""
+        missing = [i for i, c in enumerate(covered) if not c]
         if missing:
             raise MethodError(f"method {self.name!r}: fit_grid yielded no model for grid point(s) {missing}")
-        return np.stack(out)
 
     def check_mode(self, mode: str) -> None:
         if mode not in self.modes:

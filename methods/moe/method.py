@@ -40,15 +40,14 @@ class MoE(Method):
         """Points that differ only in ``epochs`` share one training run, packed at each epoch count (in
         grid order of their first point): an ``epochs_grid`` of several values is early stopping chosen
         on the validation simulation error, for the price of the longest run."""
-        runs: dict[tuple[Any, ...], list[int]] = {}
+        runs: dict[tuple[Any, ...], dict[int, list[int]]] = {}  # run -> epochs -> grid indices
         for i, params in enumerate(grid):
-            key = tuple(sorted((k, v) for k, v in resolve_params(params).items() if k != "epochs"))
-            runs.setdefault(key, []).append(i)
-        for members in runs.values():
-            by_epochs: dict[int, list[int]] = {}
-            for i in members:
-                by_epochs.setdefault(resolve_params(grid[i])["epochs"], []).append(i)
-            path = fit_mixture_path(train, grid[members[0]], self.options, rng, sorted(by_epochs))
+            hp = resolve_params(params)
+            key = tuple(sorted((k, v) for k, v in hp.items() if k != "epochs"))
+            runs.setdefault(key, {}).setdefault(hp["epochs"], []).append(i)
+        for by_epochs in runs.values():
+            first = grid[next(iter(by_epochs.values()))[0]]
+            path = fit_mixture_path(train, first, self.options, rng, sorted(by_epochs))
             for fitted in path:
                 for i in by_epochs[fitted.params["epochs"]]:
                     yield i, fitted

@@ -58,9 +58,7 @@ def fit_mixture_path(
     packed: list[MoEFitted] = []
 
     def pack(history: list[float]) -> None:
-        if not np.isfinite(history[-1]):
-            raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or "
-                              "check the data")
+        check_finite_loss(history, hp["lr"])
         weights = {k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()}
         if o["clip_schedulers"]:
             weights["v_lo"] = V.min(0).astype(weights["v_lo"].dtype)
@@ -238,6 +236,11 @@ def _train(
         if len(history) in checkpoints:
             checkpoints[len(history)](history)
     net.eval()
-    if not np.isfinite(history[-1]):
-        raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={hp['lr']} or check the data")
+    check_finite_loss(history, hp["lr"])
     return history
+
+
+def check_finite_loss(history: list[float], lr: float) -> None:
+    """MethodError when the last epoch's loss is not finite (training diverged)."""
+    if not np.isfinite(history[-1]):
+        raise MethodError(f"method 'moe': training diverged (loss {history[-1]}); lower lr={lr} or check the data")
