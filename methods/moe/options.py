@@ -152,7 +152,8 @@ OPTIONS = Declaration(
     positive("shooting_window", None, "length of the simulation-error windows; None = "
              f"{SHOOTING_WINDOW_SAMPLES} sample steps", nullable=True, unit="s",
              message="{name}={value} must be a positive number of seconds (or None for the default in samples)"),
-    text("device", "auto", "torch device: auto, cpu, cuda or cuda:INDEX", check=_device,
+    text("device", "cpu", "torch device: cpu, auto, cuda or cuda:INDEX (cpu by default: at the default minibatch a "
+         "CUDA step waits on kernel launches, 0.7x one CPU core on an H100; docs/benchmarks.md)", check=_device,
          message="{name}={value} must be a string ('auto', 'cpu', 'cuda', 'cuda:0')"),
     choice("dtype", "float32", "torch floating-point precision", ("float32", "float64")),
     whole("cpu_threads", 1, "torch intra-op threads on CPU while fitting and simulating; None = leave as is",
