@@ -437,7 +437,7 @@ class SlowMean(Method):
     def fit(self, train, params, rng):
         with open(os.environ["SLOW_MEAN_LOG"], "a") as f:
             f.write("fit\\n")
-        time.sleep(0.5)
+        time.sleep(float(os.environ.get("SLOW_MEAN_SECONDS", "0.5")))
         return train.y.mean(0)
 
     def predict(self, fitted, data):
@@ -456,9 +456,11 @@ def test_sigterm_stops_a_pool_run_without_running_its_queued_jobs(tmp_path, toy_
     env = {**os.environ, "SLOW_MEAN_LOG": str(log), "ENGINEBENCH_STORE": str(store)}
     cmd = [sys.executable, "-P", "-c", "from enginebench.cli.main import main; main()", "run", str(exp),
            "--plugin", str(plugin), "-j", "2", "-q"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # 2 s per fit: the 16 jobs need about 16 s on 2 workers, so a test process starved by a loaded
+    # machine still signals long before they could all have started (the resume runs fast)
+    proc = subprocess.Popen(cmd, env={**env, "SLOW_MEAN_SECONDS": "2"}, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        for _ in range(1200):  # until the first job is stored
+        for _ in range(3000):  # until the first job is stored (minutes on a starved machine)
             if list(store.glob("*/jobs/*.parquet")) or proc.poll() is not None:
                 break
             time.sleep(0.1)
@@ -467,7 +469,7 @@ def test_sigterm_stops_a_pool_run_without_running_its_queued_jobs(tmp_path, toy_
         _, err = proc.communicate(timeout=120)
     finally:
         proc.kill()
-    time.sleep(1.5)  # a worker left running would log more fits meanwhile
+    time.sleep(2.5)  # a worker left running would log more fits meanwhile
     started = log.read_text().count("fit")
     assert proc.returncode != 0
     assert started < 16, f"{started} of 16 fits ran after SIGTERM: the queued jobs were not cancelled"
@@ -477,7 +479,8 @@ def test_sigterm_stops_a_pool_run_without_running_its_queued_jobs(tmp_path, toy_
     assert f"interrupted: {done} of 16 jobs of run {run.id} are stored; finish it with `enginebench run --resume " \
            f"{run.id}`" in err.decode()
     resumed = subprocess.run([sys.executable, "-P", "-c", "from enginebench.cli.main import main; main()", "run",
-                              "--resume", run.id, "--plugin", str(plugin), "-j", "2", "-q"], env=env,
+                              "--resume", run.id, "--plugin", str(plugin), "-j", "2", "-q"],
+                             env={**env, "SLOW_MEAN_SECONDS": "0.05"},
                              capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     assert len(list((run.path / "jobs").glob("*.parquet"))) == 16
