@@ -4,9 +4,9 @@ Runs ``prepare`` (reading, splitting, raw arrays) once, then a sample of the exp
 jobs in this process under cProfile, each written to a throw-away run store as the runner
 does, and prints for each method the seconds per job of each stage (select, fit, predict
 parts, metrics, write) and of the work inside them, wherever it happens (window features,
-kernel matrices, factorisations and solves, scoring, MoE training epochs, free-run
-simulation: inclusive cumulative times, so they overlap the stage that called them), then
-the extrapolation to the whole plan.
+kernel matrices, factorisations and solves, scoring, MoE training epochs, the MoE's and
+SINDy's regularised (TV) derivatives, free-run simulation: inclusive cumulative times, so
+they overlap the stage that called them), then the extrapolation to the whole plan.
 
 The sample takes ``--per-method`` jobs of every method, spread over targets, windows and
 repetitions, so the extrapolation weighs each method by its number of jobs. Timings are
@@ -45,6 +45,7 @@ STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (2, "factorisations / solves", (("methods/numerics/shifted.py", "shifted_solutions"), ("methods/numerics/kernels.py", "from_kernel"))),
     (2, "scoring", (("experiments/selection.py", "grid_scores"),)),
     (2, "MoE training epochs", (("methods/moe/training.py", "_train"),)),
+    (2, "regularised derivatives (LASSO)", (("methods/numerics/derivatives.py", "differentiate"),)),
     (2, "simulation (free run)", (("methods/moe/simulation.py", "simulate"), ("methods/numerics/integrate.py", "integrate"))),
     (1, "fit (chosen point)", (("methods/", "fit"),)),
     (1, "predict parts", (("experiments/jobs.py", "predict_part"),)),
