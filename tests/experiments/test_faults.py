@@ -437,7 +437,7 @@ class SlowMean(Method):
     def fit(self, train, params, rng):
         with open(os.environ["SLOW_MEAN_LOG"], "a") as f:
             f.write("fit\\n")
-        time.sleep(float(os.environ.get("SLOW_MEAN_SECONDS", "0.5")))
+        time.sleep(float(os.environ["SLOW_MEAN_SECONDS"]))
         return train.y.mean(0)
 
     def predict(self, fitted, data):
