@@ -54,7 +54,7 @@ from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.numerics.derivatives import digest
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
-    DERIVATIVE_KINDS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
+    DERIVATIVE_KINDS, DERIVATIVE_SOLVERS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
 )
 
 DEFAULT_DERIVATIVE_ALPHA = {"trend_filtered": 1e-3, "kalman": 1.0}
@@ -63,8 +63,8 @@ THRESHOLD_SCALES = ("relative", "absolute")
 DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
 """Default STLSQ threshold grids: relative to each derivative's rms, or seed 003's absolute range."""
 MIN_ROWS = 4
-_PREPARE_OPTIONS = ("derivative", "derivative_chunk", "derivative_margin", "derivative_max_iter", "time_scale",
-                    "envelope")
+_PREPARE_OPTIONS = ("derivative", "derivative_solver", "derivative_chunk", "derivative_margin", "derivative_max_iter",
+                    "time_scale", "envelope")
 """The options ``SINDy._prepare``'s result depends on (with ``derivative_alpha``): its cache key."""
 PREPARED_CACHE_SIZE = 2
 """Prepared training sets ``SINDy._prepare`` keeps per process (least recently used dropped first)."""
@@ -225,6 +225,9 @@ class SINDy(Method):
                  "(trend_filtered) or 1.0 (kalman)", nullable=True),
         whole("derivative_chunk", 256, "samples per chunk of the trend-filtered derivative", low=1, unit="samples"),
         whole("derivative_margin", 32, "overlap between derivative chunks", low=0, unit="samples"),
+        choice("derivative_solver", "admm", "trend_filtered's solver: batched ADMM checked for optimality, or the "
+               "derivative package's Lasso (stops at derivative_max_iter short of the optimum; earlier results)",
+               DERIVATIVE_SOLVERS),
         whole("derivative_max_iter", 20000, "iteration cap of the trend-filtered derivative's solver", low=1),
         positive("time_scale", 1.0, "time unit of the identified ODE (the derivative is per time_scale seconds)",
                  unit="s"),
@@ -443,7 +446,7 @@ class SINDy(Method):
                 xd.append(differentiate(
                     x, dt / ts, kind=self.options["derivative"], alpha=self.derivative_alpha,
                     chunk=int(self.options["derivative_chunk"]), margin=int(self.options["derivative_margin"]),
-                    max_iter=int(self.options["derivative_max_iter"]),
+                    max_iter=int(self.options["derivative_max_iter"]), solver=self.options["derivative_solver"],
                 ))
         xd_all = np.concatenate(xd)
         rms = np.sqrt(np.mean(xd_all ** 2, axis=0))

@@ -20,6 +20,7 @@ from enginebench.methods.numerics.derivatives import differentiate as regularise
 from enginebench.methods.numerics.integrate import integrate
 
 DERIVATIVE_KINDS = ("trend_filtered", "kalman")
+DERIVATIVE_SOLVERS = ("admm", "lasso")
 """Regularised differentiators of the ``derivative`` package that SINDy offers.
 
 ``trend_filtered`` with order 0 is total-variation regularised differentiation (the
@@ -107,12 +108,13 @@ def differentiate(
     chunk: int = 256,
     margin: int = 32,
     max_iter: int = 20000,
+    solver: str = "admm",
 ) -> np.ndarray:
     """Regularised time derivative of uniformly sampled signals ``x`` (n, k).
 
     The shared differentiator (``numerics.derivatives.differentiate``): ``trend_filtered``
-    (order 0: total-variation regularisation; sklearn's default Lasso tolerance) or
-    ``kalman``. Both work with dense n x n matrices, so long signals are cut into
+    (order 0: total-variation regularisation, solved by ``solver``: batched ADMM to a
+    verified optimum, or the package's Lasso with tol 1e-4) or ``kalman``. Both work with dense n x n matrices, so long signals are cut into
     overlapping chunks of ``chunk`` rows; each chunk contributes its interior (``margin``
     rows are dropped at each inner edge). The regularisation acts in sample-index time,
     which makes ``alpha`` independent of the sample period and keeps the LASSO well
@@ -126,7 +128,7 @@ def differentiate(
     index = np.arange(x.shape[0], dtype=np.float64)
     _, d = regularised_derivative(
         x, index, alpha, kind=kind, window=chunk, margin=margin, first_keep=chunk - margin, tol=1e-4,
-        max_iter=max_iter, precompute=False, quiet=False,
+        max_iter=max_iter, precompute=False, quiet=False, solver=solver,
     )
     return d / dt
 

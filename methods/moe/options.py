@@ -133,6 +133,9 @@ OPTIONS = Declaration(
     positive("tv_alpha", 0.05, "total-variation regularisation of the derivative targets (standardised output "
              "units, time in samples)", message="{name}={value} must be a positive number"),
     choice("tv_order", 0, "order of the total-variation regularisation", (0, 1)),
+    choice("tv_solver", "admm", "solver of the order-0 TV problem: batched ADMM checked for optimality, or the "
+           "derivative package's Lasso (stops at its iteration cap short of the optimum; earlier results)",
+           ("admm", "lasso")),
     choice("integrator", "rk4", "simulation's integration scheme", ("rk4", "euler")),
     choice("input_interp", "linear", "inputs between samples: linear interpolation or hold", ("linear", "hold")),
     positive("envelope", 10.0, "divergence: y leaving [min - e range, max + e range] of the training outputs",

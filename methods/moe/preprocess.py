@@ -60,7 +60,7 @@ def prepare(train: Samples, o: Mapping[str, Any]) -> Prepared:
     Z = [(y - y_mean) / y_scale for y in Y]
     # TV derivative with time counted in samples, so that tv_alpha does not depend on dt
     dZ = segment_derivatives(
-        Z, [(t - t[0]) / train.dt for t in T], o["tv_alpha"], order=o["tv_order"],
+        Z, [(t - t[0]) / train.dt for t in T], o["tv_alpha"], order=o["tv_order"], solver=o["tv_solver"],
         where=[f"method 'moe', training segment {s.id!r}" for s in train.segments],
     )
     dZ_all = np.concatenate(dZ) / train.dt

@@ -5,12 +5,15 @@ sampled trajectories; a plain finite difference amplifies the noise by 1/dt. Thi
 module wraps the maintained ``derivative`` package's estimators: ``trend_filtered``
 (``derivative.TrendFiltered``; ``order=0`` is Chartrand's total-variation derivative,
 ``order=1`` penalises the variation of the second derivative) and ``kalman`` (the RTS
-smoother, quadratic regularisation), and makes them usable on long segments: the
-package solves dense problems whose cost grows like the cube of the length, so a long
+smoother, quadratic regularisation), and makes them usable on long segments: a long
 signal is cut into overlapping windows whose central parts are stitched back together.
-The LASSO settings (``tol``, ``max_iter``, ``precompute``) and the window layout are
-arguments, so each caller keeps its own numbers (MoE: 128-sample windows, tol 1e-3;
-SINDy: 256-sample chunks with sklearn's default tol, see ``methods/sindy_library.py``).
+
+The total-variation problem (``order=0``) is solved by default with ``solver="admm"``
+(:mod:`tv_admm`): all windows of equal length in one batch, each to a verified optimum.
+``solver="lasso"`` keeps the package's route (scikit-learn's coordinate descent per
+window and column, settings ``tol``, ``max_iter``, ``precompute``), which at these sizes
+usually stops at its iteration cap well short of the optimum; it stays for ``order=1``
+and to reproduce results computed before the batched solver existed.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from sklearn.exceptions import ConvergenceWarning
 from threadpoolctl import threadpool_limits
 
 from enginebench.errors import DataError
+from enginebench.methods.numerics.tv_admm import integral_matrix, tv_solve
 
 DEFAULT_WINDOW = 128
 """Samples per LASSO problem; the package's cost per sample grows with the window."""
@@ -35,6 +39,8 @@ DEFAULT_MARGIN = 16
 
 KINDS = ("trend_filtered", "kalman")
 """Estimators of the ``derivative`` package offered here."""
+SOLVERS = ("admm", "lasso")
+"""Solvers of the total-variation problem: batched ADMM with a KKT test, or the package's Lasso."""
 
 
 def window_bounds(
@@ -108,20 +114,24 @@ def differentiate(
     precompute: bool = True,
     blas_threads: int | None = 1,
     quiet: bool = True,
+    solver: str = "admm",
+    kkt_tol: float = 1e-3,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Smoothed signal and derivative of ``y`` ((N,) or (N, c)) sampled at uniform times ``t``.
 
     ``kind="trend_filtered"``: each column and window solves ``min 1/2 |A u - (y - y_0)|^2 +
-    alpha |D^(order+1) u|_1`` (``A`` integrates, ``D`` differentiates) with
-    ``derivative.TrendFiltered`` (sklearn's Lasso with ``tol``, ``max_iter``,
-    ``precompute``). ``kind="kalman"``: ``derivative.Kalman(alpha)`` (``order`` and the
+    alpha |D^(order+1) u|_1`` (``A`` integrates, ``D`` differentiates). ``solver="admm"``
+    (order 0): :func:`tv_admm.tv_solve` on every window at once, up to ``max_iter``
+    iterations, each window accepted when optimal to ``kkt_tol``; ``solver="lasso"``
+    (and order 1): ``derivative.TrendFiltered`` (sklearn's Lasso with ``tol``,
+    ``max_iter``, ``precompute``). ``kind="kalman"``: ``derivative.Kalman(alpha)`` (``order`` and the
     Lasso settings unused). ``alpha`` is in the units of ``y``: scale it with the signal;
     pass time in samples to make it independent of the sample period. Windows follow
     :func:`window_bounds`. Returns ``(y_smooth, dy_dt)``, both shaped like ``y``.
     ``blas_threads`` caps BLAS threads meanwhile (None: leave as is): the windows are
     small, and on busy shared cores threaded BLAS only waits. ``quiet`` silences the
-    Lasso's ConvergenceWarning (a LASSO stopped at max_iter still gives a usable
-    estimate); ``quiet=False`` lets callers count them.
+    ConvergenceWarning of a window stopped at ``max_iter`` (its estimate is still
+    usable); ``quiet=False`` lets callers count them (one warning per window).
     """
     y = np.asarray(y, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
@@ -131,13 +141,19 @@ def differentiate(
         raise DataError(f"tv derivative: alpha must be > 0, got {alpha}")
     if order not in (0, 1):
         raise DataError(f"tv derivative: order must be 0 (total variation of dy/dt) or 1, got {order}")
+    if solver not in SOLVERS:
+        raise DataError(f"tv derivative: unknown solver {solver!r}; use one of {', '.join(SOLVERS)}")
     flat = y.ndim == 1
     Y = y[:, None] if flat else y
     if Y.ndim != 2 or Y.shape[0] != t.shape[0]:
         raise DataError(f"tv derivative: y has shape {y.shape} but t has {t.shape[0]} samples; they must match in rows")
     if not np.isfinite(Y).all():
         raise DataError(f"tv derivative: y holds NaN or inf (first at row {int(np.argwhere(~np.isfinite(Y))[0, 0])})")
-    _check_time(t, "tv derivative")
+    h = _check_time(t, "tv derivative")
+    bounds = window_bounds(len(t), window, margin, first_keep)
+    if kind == "trend_filtered" and order == 0 and solver == "admm":
+        with threadpool_limits(blas_threads, user_api="blas"):
+            return _tv_admm(Y, h, alpha, bounds, max_iter=max_iter, kkt_tol=kkt_tol, quiet=quiet, flat=flat)
     smooth = np.empty_like(Y)
     deriv = np.empty_like(Y)
     if kind == "kalman":
@@ -150,13 +166,39 @@ def differentiate(
     with warnings.catch_warnings(), threadpool_limits(blas_threads, user_api="blas"):
         if quiet:
             warnings.simplefilter("ignore", ConvergenceWarning)
-        for lo, hi, a, b in window_bounds(len(t), window, margin, first_keep):
+        for lo, hi, a, b in bounds:
             tw = t[lo:hi] - t[lo]
             for c in range(Y.shape[1]):
                 xd = estimator.d(Y[lo:hi, c], tw)
                 deriv[a:b, c] = xd[a - lo : b - lo]
                 smooth[a:b, c] = estimator.x(Y[lo:hi, c], tw)[a - lo : b - lo]
     type(estimator)._global.cache_clear()
+    return (smooth[:, 0], deriv[:, 0]) if flat else (smooth, deriv)
+
+
+def _tv_admm(
+    Y: np.ndarray, dt: float, alpha: float, bounds: list[tuple[int, int, int, int]], *, max_iter: int,
+    kkt_tol: float, quiet: bool, flat: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`differentiate`'s TV route: every (window, column) solved in one batch per window length."""
+    smooth = np.empty_like(Y)
+    deriv = np.empty_like(Y)
+    for length in sorted({hi - lo for lo, hi, _, _ in bounds}):
+        group = [w for w in bounds if w[1] - w[0] == length]
+        B = np.concatenate([Y[lo:hi] - Y[lo] for lo, hi, _, _ in group], axis=1)  # (length, windows x columns)
+        U, converged = tv_solve(B, alpha, dt, max_iter=max_iter, tol=kkt_tol)
+        X = integral_matrix(length, dt) @ U
+        c = Y.shape[1]
+        for k, (lo, hi, a, b) in enumerate(group):
+            cols = slice(k * c, (k + 1) * c)
+            deriv[a:b] = U[a - lo : b - lo, cols]
+            smooth[a:b] = X[a - lo : b - lo, cols] + Y[lo]
+        if not quiet:
+            for _ in range(int((~converged).sum())):
+                warnings.warn(
+                    f"tv derivative: a window did not reach its optimum (KKT test {kkt_tol}) within "
+                    f"max_iter={max_iter} iterations", ConvergenceWarning, stacklevel=3,
+                )
     return (smooth[:, 0], deriv[:, 0]) if flat else (smooth, deriv)
 
 

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from derivative.utils import integ
 from derivative import TrendFiltered
 from scipy.integrate import solve_ivp
 
@@ -26,6 +27,7 @@ from enginebench.datasets.samples import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError, MethodError
 from enginebench.methods.numerics.derivatives import tv_derivative, tv_differentiate, window_bounds
+from enginebench.methods.numerics.tv_admm import objective
 from enginebench.methods.moe import MoE, frozen_stability, gate_weights, local_coefficients, simulate
 from enginebench.methods.moe.model import moe_loss, signed_softplus
 
@@ -126,13 +128,19 @@ def test_tv_derivative_columns_windows_and_package_agree():
     D = tv_derivative(Y, t, 1e-5)
     assert D.shape == (300, 2)
     np.testing.assert_allclose(D[:, 1], tv_derivative(Y[:, 1], t, 1e-5))  # columns are independent
-    # one window: exactly the package's estimate; several windows: close to its full-length one
-    short = tv_derivative(Y[:100, 0], t[:100], 1e-5)
+    # one window, the package's solver: exactly its estimate; several windows: close to its full-length one
+    short = tv_derivative(Y[:100, 0], t[:100], 1e-5, solver="lasso")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ref_short = TrendFiltered(order=0, alpha=1e-5, tol=1e-3, max_iter=10_000, precompute=True).d(Y[:100, 0], t[:100])
         ref_full = TrendFiltered(order=0, alpha=1e-5, tol=1e-3, max_iter=10_000, precompute=True).d(Y[:, 0], t)
     np.testing.assert_allclose(short, ref_short, rtol=1e-7, atol=1e-10)  # BLAS thread counts differ
+    # the default (batched ADMM) solver: a lower objective than the package's stopped Lasso
+    B, A = (Y[:100, :1] - Y[0, 0]), integ(100, 0.02)
+    f_admm, f_lasso = (
+        float(objective(u[:, None], B, A, 1e-5, 0.02)[0]) for u in (tv_derivative(Y[:100, 0], t[:100], 1e-5), short)
+    )
+    assert f_admm < f_lasso
     assert np.sqrt(np.mean((D[10:-10, 0] - ref_full[10:-10]) ** 2)) < 0.05
     smooth, _ = tv_differentiate(Y, t, 1e-5)
     assert np.sqrt(np.mean((smooth - Y) ** 2)) < 0.02

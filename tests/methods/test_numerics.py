@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 import torch
 from derivative import Kalman, TrendFiltered
+from derivative.utils import integ
+from sklearn.linear_model import LassoLars
 
 from enginebench.errors import DataError, MethodError
 from enginebench.methods.numerics.derivatives import differentiate, segment_derivatives, window_bounds
 from enginebench.methods.numerics.device import resolve_device
+from enginebench.methods.numerics.tv_admm import kkt_violation, objective
 from enginebench.methods.numerics.integrate import hold_after_exit, integrate
 
 
@@ -37,12 +40,73 @@ def test_one_window_is_exactly_the_package_estimate_for_both_kinds():
         warnings.simplefilter("ignore")
         tv_ref = TrendFiltered(order=0, alpha=1e-3, max_iter=20000).d(y, t)
         kal_ref = Kalman(alpha=1.0).d(y, t)
-        _, tv = differentiate(y, t, 1e-3, tol=1e-4, max_iter=20000, precompute=False)
+        _, tv = differentiate(y, t, 1e-3, tol=1e-4, max_iter=20000, precompute=False, solver="lasso")
     _, kal = differentiate(y, t, 1.0, kind="kalman")
     np.testing.assert_allclose(tv, tv_ref, rtol=1e-7, atol=1e-10)
     np.testing.assert_allclose(kal, kal_ref, rtol=1e-7, atol=1e-10)
     with pytest.raises(DataError, match="unknown kind 'spline'"):
         differentiate(y, t, 1.0, kind="spline")
+    with pytest.raises(DataError, match="unknown solver 'cvx'; use one of admm, lasso"):
+        differentiate(y, t, 1.0, solver="cvx")
+
+
+def _tv_reference(y: np.ndarray, dt: float, alpha: float) -> np.ndarray:
+    """The TV derivative by exact LARS on the problem written as a Lasso in the jumps of u.
+
+    u = c + cumsum(v): the integral of a unit step at sample i is column i of A C; the free
+    constant c is projected out, as in the ``derivative`` package.
+    """
+    n = y.size
+    A = integ(n, dt)
+    AC = np.cumsum(A[:, ::-1], axis=1)[:, ::-1]
+    x0, X1 = AC[:, :1], AC[:, 1:] * dt  # a jump of dt * (du/dt difference) per sample: |D u|_1 = |v|_1 / dt
+    P = np.eye(n) - x0 @ np.linalg.pinv(x0)
+    b = y - y[0]
+    v = LassoLars(alpha=alpha / n, fit_intercept=False, max_iter=10_000).fit(P @ X1, P @ b).coef_ * dt
+    c = np.linalg.lstsq(x0, b - AC[:, 1:] @ v, rcond=None)[0][0]
+    return c + np.r_[0.0, np.cumsum(v)]
+
+
+@pytest.mark.parametrize(
+    ("n", "dt", "alpha", "lars_exact"), [(90, 1.0, 1e-3, False), (128, 0.25, 0.05, True), (60, 2.0, 1e-2, True)]
+)
+def test_tv_admm_reaches_the_exact_minimiser_that_coordinate_descent_stops_short_of(n, dt, alpha, lars_exact):
+    rng = np.random.default_rng(n)
+    t = np.arange(n) * dt
+    y = np.sin(0.05 * t) + 0.3 * (t > t[n // 2]) + 0.01 * rng.standard_normal(n)
+    A = integ(n, dt)
+    ref = _tv_reference(y, dt, alpha)
+    _, ours = differentiate(y, t, alpha)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, cd = differentiate(y, t, alpha, solver="lasso", tol=1e-4, max_iter=20000, precompute=False)
+    B = (y - y[0])[:, None]
+    f_ref, f_ours, f_cd = (float(objective(u[:, None], B, A, alpha, dt)[0]) for u in (ref, ours, cd))
+    assert f_ours <= f_ref * (1 + 1e-9)
+    assert float(kkt_violation(ours[:, None], B, A, alpha, dt)[0]) <= 1e-6
+    # LARS itself is exact only where its path stays well conditioned (54 jumps of 89 at n = 90 is not)
+    assert (float(kkt_violation(ref[:, None], B, A, alpha, dt)[0]) <= 1e-6) is lars_exact
+    if lars_exact:
+        np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-7 * np.abs(ref).max())
+    assert f_cd > f_ours * (1 + 1e-6)  # the package's route stops short of the optimum here
+
+
+def test_tv_admm_batches_windows_and_columns_like_separate_solves():
+    rng = np.random.default_rng(3)
+    t = np.arange(700) * 0.5
+    Y = np.c_[np.sin(0.02 * t), np.cos(0.05 * t)] + 0.01 * rng.standard_normal((700, 2))
+    smooth, both = differentiate(Y, t, 1e-2, window=128, margin=16)
+    for c in range(2):
+        _, one = differentiate(Y[:, c], t, 1e-2, window=128, margin=16)
+        np.testing.assert_allclose(both[:, c], one, rtol=0, atol=1e-9)
+    # the smoothed signal integrates the derivative from each window's first sample
+    assert np.abs(smooth - Y).max() < 0.05
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _, capped = differentiate(Y, t, 1e-2, window=128, margin=16, max_iter=1, quiet=False)
+    assert np.isfinite(capped).all()
+    assert len(caught) == 2 * len(window_bounds(700, 128, 16))
+    assert "did not reach its optimum (KKT test 0.001) within max_iter=1 iterations" in str(caught[0].message)
 
 
 def test_segment_derivatives_name_the_failing_segment():
