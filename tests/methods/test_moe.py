@@ -160,6 +160,8 @@ def test_tv_derivative_rejects_bad_time():
         tv_derivative(np.arange(5.0), t, 1e-3)
     with pytest.raises(DataError, match="must match in rows"):
         tv_derivative(np.arange(4.0), np.arange(5.0), 1e-3)
+    with pytest.raises(MethodError, match="option tv_solver='cvx'; use 'admm' or 'lasso'"):
+        MoE(tv_solver="cvx")
 
 
 # -- building blocks ------------------------------------------------------------------------------

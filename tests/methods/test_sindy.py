@@ -20,6 +20,7 @@ from enginebench.datasets.samples import Samples, make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.methods.base import SegmentPredictions, grid_points
+from enginebench.methods.numerics.derivatives import window_bounds
 from enginebench.methods.sindy import SINDy, differentiate, library_features, raw_coefficients, simulate_batch
 
 DT = 0.1
@@ -503,3 +504,18 @@ def test_the_final_fit_reuses_the_grid_searchs_derivatives_and_equals_a_fresh_on
     m.fit(QUADRATIC, grid[0], RNG)
     assert len(calls) == 2 * per_training_set + len(LINEAR.segments) + len(QUADRATIC.segments)
     assert not m._prepare(LINEAR).x_dot[0].flags.writeable  # what a later fit reads cannot be changed
+
+
+def test_tv_derivatives_are_solved_to_optimality_unless_the_lasso_solver_is_asked_for():
+    """The default TV solver leaves no window unconverged and no note; the package's Lasso, capped, says so."""
+    params = {"degree": 1, "threshold": 0.05, "alpha": 1e-4}
+    exact = SINDy(derivative="trend_filtered", derivative_chunk=128, derivative_margin=16)
+    d = exact.describe(exact.fit(LINEAR, params, np.random.default_rng(0)))
+    assert not any("converge" in n for n in d["notes"])
+    capped = SINDy(derivative="trend_filtered", derivative_chunk=128, derivative_margin=16,
+                   derivative_solver="lasso", derivative_max_iter=5)
+    notes = capped.describe(capped.fit(LINEAR, params, np.random.default_rng(0)))["notes"]
+    n_windows = sum(len(window_bounds(len(s.t), 128, 16, 112)) for s in LINEAR.segments)
+    assert f"differentiation: {n_windows} chunk(s) did not fully converge (derivative_max_iter)" in notes
+    with pytest.raises(MethodError, match="option derivative_solver='cvx'; use 'admm' or 'lasso'"):
+        SINDy(derivative_solver="cvx")
