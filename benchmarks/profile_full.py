@@ -45,7 +45,7 @@ STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (2, "factorisations / solves", (("methods/numerics/shifted.py", "shifted_solutions"), ("methods/numerics/kernels.py", "from_kernel"))),
     (2, "scoring", (("experiments/selection.py", "grid_scores"),)),
     (2, "MoE training epochs", (("methods/moe/training.py", "_train"),)),
-    (2, "regularised derivatives (LASSO)", (("methods/numerics/derivatives.py", "differentiate"),)),
+    (2, "regularised derivatives (TV)", (("methods/numerics/derivatives.py", "differentiate"),)),
     (2, "simulation (free run)", (("methods/moe/simulation.py", "simulate"), ("methods/numerics/integrate.py", "integrate"))),
     (1, "fit (chosen point)", (("methods/", "fit"),)),
     (1, "predict parts", (("experiments/jobs.py", "predict_part"),)),

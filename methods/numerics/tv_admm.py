@@ -15,9 +15,10 @@ Here every window of a segment set is solved in one batch:
 1. ADMM on ``z = D u``: the u-step is one matrix product with the inverse of
    ``A'A + rho D'D``, shared by all windows (they have the same length and period), so
    an iteration is one GEMM over the whole batch; the z-step is a soft threshold.
-2. Every ``ROUND`` iterations each window not yet accepted is *polished*: the support
-   and signs of ``z`` fix a piecewise-constant ``u``, whose exact value is a small
-   least-squares solve (QR of the active columns, penalty moved to the right side).
+2. Every ``ROUND`` iterations each window not yet accepted whose signs of ``z`` changed
+   since its last try is *polished*: the support and signs of ``z`` fix a
+   piecewise-constant ``u``, whose exact value is a small least-squares solve (QR of the
+   active columns, penalty moved to the right side).
 3. A polished window is accepted when it satisfies the optimality (KKT) conditions of
    the problem to ``tol`` (relative to ``alpha``): then it *is* the minimiser, to
    rounding, whatever ADMM's own accuracy. Windows still open after ``max_iter``
@@ -28,7 +29,7 @@ Here every window of a segment set is solved in one batch:
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg import qr, solve_triangular
 
 ROUND = 100
 """ADMM iterations between polishing passes."""
@@ -73,13 +74,14 @@ def _polish(AC: np.ndarray, b: np.ndarray, z: np.ndarray, lam: float) -> np.ndar
 
     ``AC``: column 0 is ``A 1`` (the free constant), column i the integral of a unit
     step at sample i. Solves ``min 1/2 |X t - b|^2 + lam s't`` by QR of the active
-    columns, which keeps the conditioning of ``X`` instead of squaring it.
+    columns with ``b`` appended (R and Q'b without forming Q), which keeps the
+    conditioning of ``X`` instead of squaring it.
     """
     S = np.flatnonzero(z)
-    X = AC[:, np.r_[0, S + 1]]
+    k = S.size + 1
+    R = qr(np.column_stack([AC[:, np.r_[0, S + 1]], b]), mode="r", overwrite_a=True, check_finite=False)[0]
     q = np.r_[0.0, lam * np.sign(z[S])]
-    Q, R = np.linalg.qr(X)
-    theta = solve_triangular(R, Q.T @ b - solve_triangular(R, q, trans="T"))
+    theta = solve_triangular(R[:k, :k], R[:k, k] - solve_triangular(R[:k, :k], q, trans="T"))
     v = np.zeros(z.size)
     v[S] = theta[1:]
     return theta[0] + np.r_[0.0, np.cumsum(v)]
@@ -110,7 +112,7 @@ def tv_solve(
     open_ = np.arange(W)
     Z = np.zeros((n - 1, W))
     Y = np.zeros((n - 1, W))  # scaled dual
-    U = np.zeros_like(B)
+    tried = np.full((n - 1, W), 2, dtype=np.int8)  # signs of z at each window's last polish (2: none yet)
     for it in range(1, max_iter + 1):
         R = Z - Y
         DtR = np.zeros((n, R.shape[1]))  # D' (z - y) by differences
@@ -121,19 +123,25 @@ def tv_solve(
         V = DU + Y
         Z = np.sign(V) * np.maximum(np.abs(V) - lam / rho, 0.0)
         Y += DU - Z
-        if it % ROUND and it != max_iter:
+        last = it == max_iter
+        if it % ROUND and not last:
             continue
-        P = np.column_stack([_polish(AC, B[:, j], Z[:, j], lam) for j in range(len(open_))])
-        ok = kkt_violation(P, B, A, alpha, dt) <= tol
-        out[:, open_[ok]] = P[:, ok]
+        signs = np.sign(Z).astype(np.int8)
+        # a polish depends on the signs of z only: windows whose signs did not change are not polished again
+        new = np.flatnonzero((signs != tried).any(axis=0) | last)
+        tried[:, new] = signs[:, new]
+        P = np.column_stack([_polish(AC, B[:, j], Z[:, j], lam) for j in new]) if new.size else np.empty((n, 0))
+        ok = np.zeros(open_.size, dtype=bool)
+        ok[new] = kkt_violation(P, B[:, new], A, alpha, dt) <= tol
+        out[:, open_[ok]] = P[:, ok[new]]
         done[open_[ok]] = True
-        if it == max_iter:
-            keep = ~ok
+        if last:
+            keep = ~ok  # every open window was polished on the last pass: keep the better estimate
             better = objective(P[:, keep], B[:, keep], A, alpha, dt) < objective(U[:, keep], B[:, keep], A, alpha, dt)
             out[:, open_[keep]] = np.where(better, P[:, keep], U[:, keep])
             break
         if ok.all():
             break
         keep = ~ok
-        open_, B, AtB, Z, Y = open_[keep], B[:, keep], AtB[:, keep], Z[:, keep], Y[:, keep]
+        open_, B, AtB, Z, Y, tried = open_[keep], B[:, keep], AtB[:, keep], Z[:, keep], Y[:, keep], tried[:, keep]
     return out, done
