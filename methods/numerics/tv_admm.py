@@ -35,16 +35,16 @@ ROUND = 100
 """ADMM iterations between polishing passes."""
 RHO_PER_ALPHA = 10.0
 """ADMM penalty ``rho = RHO_PER_ALPHA * alpha / dt``: soft threshold ``alpha / (dt rho)`` = 0.1
-(in units of the derivative's jumps); measured best of 1e-3 .. 10 on turboshaft windows.
-Acceptance rests on the KKT test, so rho only sets the speed."""
+(in units of the derivative's jumps); of 1, 10 and 100 x alpha the best for alpha 1e-4 .. 1e-2
+on turboshaft windows (docs/methods.md). Acceptance rests on the KKT test, so rho only sets
+the speed."""
 
 
 def integral_matrix(n: int, dt: float) -> np.ndarray:
     """Trapezoid running integral (n x n): row i integrates samples 0..i; row 0 is zero."""
-    A = np.zeros((n, n))
-    for i in range(1, n):
-        A[i, : i + 1] = dt
-        A[i, 0] = A[i, i] = dt / 2
+    A = np.tril(np.full((n, n), dt))
+    A[:, 0] = A[np.diag_indices(n)] = dt / 2
+    A[0] = 0.0
     return A
 
 
