@@ -16,11 +16,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from enginebench.errors import MethodError
+from enginebench.methods.numerics.derivatives import SOLVERS as DERIVATIVE_SOLVERS  # noqa: F401 (SINDy's option)
 from enginebench.methods.numerics.derivatives import differentiate as regularised_derivative
 from enginebench.methods.numerics.integrate import integrate
 
 DERIVATIVE_KINDS = ("trend_filtered", "kalman")
-DERIVATIVE_SOLVERS = ("admm", "lasso")
 """Regularised differentiators of the ``derivative`` package that SINDy offers.
 
 ``trend_filtered`` with order 0 is total-variation regularised differentiation (the
@@ -114,9 +114,10 @@ def differentiate(
 
     The shared differentiator (``numerics.derivatives.differentiate``): ``trend_filtered``
     (order 0: total-variation regularisation, solved by ``solver``: batched ADMM to a
-    verified optimum, or the package's Lasso with tol 1e-4) or ``kalman``. Both work with dense n x n matrices, so long signals are cut into
-    overlapping chunks of ``chunk`` rows; each chunk contributes its interior (``margin``
-    rows are dropped at each inner edge). The regularisation acts in sample-index time,
+    verified optimum, or the package's Lasso with tol 1e-4) or ``kalman``. Both work with
+    dense n x n matrices, so long signals are cut into overlapping chunks of ``chunk``
+    rows; each chunk contributes its interior (``margin`` rows are dropped at each inner
+    edge). The regularisation acts in sample-index time,
     which makes ``alpha`` independent of the sample period and keeps the LASSO well
     scaled. Lasso ConvergenceWarnings are let through (``_prepare`` counts them).
     """

@@ -24,6 +24,7 @@ from enginebench.declare import (Declaration, Invalid, anything, choice, flag, i
                                  positive, table, text, whole)
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params
+from enginebench.methods.numerics.derivatives import SOLVERS as DERIVATIVE_SOLVERS
 from enginebench.methods.numerics.device import resolve_device
 
 HYPERPARAMETERS: dict[str, Any] = {
@@ -135,7 +136,7 @@ OPTIONS = Declaration(
     choice("tv_order", 0, "order of the total-variation regularisation", (0, 1)),
     choice("tv_solver", "admm", "solver of the order-0 TV problem: batched ADMM checked for optimality, or the "
            "derivative package's Lasso (stops at its iteration cap short of the optimum; earlier results)",
-           ("admm", "lasso")),
+           DERIVATIVE_SOLVERS),
     choice("integrator", "rk4", "simulation's integration scheme", ("rk4", "euler")),
     choice("input_interp", "linear", "inputs between samples: linear interpolation or hold", ("linear", "hold")),
     positive("envelope", 10.0, "divergence: y leaving [min - e range, max + e range] of the training outputs",
