@@ -9,7 +9,7 @@ import pandas as pd
 import scipy.signal
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.samples import RawSegments, SamplePool, Samples
+from enginebench.datasets.samples import RawSegments, SamplePool, Samples, make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 
@@ -127,3 +127,22 @@ def stored_run(store, name: str, values: dict[str, list[float]], *, dataset: str
     if status != "running":
         run.update_info(status=status, finished_jobs=len(jobs), failed_jobs=failed)
     return run
+
+
+def two_state_samples(seed: int = 0, n_seg: int = 3, n: int = 300):
+    """Two coupled first-order outputs driven by two inputs (one also schedules), 10 Hz."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for s in range(n_seg):
+        t = np.arange(n) * 0.1
+        u = np.sin(0.3 * t + rng.uniform(0, 6)) + 0.3 * rng.standard_normal(n).cumsum() / np.sqrt(n)
+        v = np.cos(0.1 * t + rng.uniform(0, 6))
+        y1, y2 = np.zeros(n), np.zeros(n)
+        for i in range(1, n):
+            a = -1.0 - 0.5 * v[i - 1]
+            y1[i] = y1[i - 1] + 0.1 * (a * y1[i - 1] + u[i - 1])
+            y2[i] = y2[i - 1] + 0.1 * (-2.0 * y2[i - 1] + 0.5 * y1[i - 1] + v[i - 1])
+        frames.append(pd.DataFrame({"segment": f"s{s}", "time": t, "u": u, "v": v, "y1": y1, "y2": y2}))
+    roles = {"u": "input", "v": "input", "y1": "output", "y2": "output"}
+    ds = Dataset("two-state", pd.concat(frames, ignore_index=True), Schema.from_roles(roles), 0.1)
+    return make_samples(ds, ["y1", "y2"], "simulation")

@@ -12,7 +12,8 @@ from enginebench.methods.moe.explain import describe, gate_weights
 from enginebench.methods.moe.fitted import MoEFitted
 from enginebench.methods.moe.options import OPTIONS, resolve_params, search_space
 from enginebench.methods.moe.simulation import simulate
-from enginebench.methods.moe.training import fit_mixture, fit_mixture_path
+from enginebench.methods.moe.grid import fit_mixture_grid
+from enginebench.methods.moe.training import fit_mixture
 
 
 class MoE(Method):
@@ -39,17 +40,18 @@ class MoE(Method):
                  ) -> Iterator[tuple[int, MoEFitted]]:
         """Points that differ only in ``epochs`` share one training run, packed at each epoch count (in
         grid order of their first point): an ``epochs_grid`` of several values is early stopping chosen
-        on the validation simulation error, for the price of the longest run."""
+        on the validation simulation error, for the price of the longest run. With ``batch_grid`` (the
+        default) the runs train side by side in one batched loop (``grid.py``)."""
         runs: dict[tuple[Any, ...], dict[int, list[int]]] = {}  # run -> epochs -> grid indices
         for i, params in enumerate(grid):
             hp = resolve_params(params)
             key = tuple(sorted((k, v) for k, v in hp.items() if k != "epochs"))
             runs.setdefault(key, {}).setdefault(hp["epochs"], []).append(i)
-        for by_epochs in runs.values():
-            first = grid[next(iter(by_epochs.values()))[0]]
-            path = fit_mixture_path(train, first, self.options, rng, sorted(by_epochs))
+        by_run = list(runs.values())
+        plan = [(grid[next(iter(by_epochs.values()))[0]], sorted(by_epochs)) for by_epochs in by_run]
+        for j, path in fit_mixture_grid(train, plan, self.options, rng):
             for fitted in path:
-                for i in by_epochs[fitted.params["epochs"]]:
+                for i in by_run[j][fitted.params["epochs"]]:
                     yield i, fitted
 
     def predict(self, fitted: MoEFitted, data: Samples) -> SegmentPredictions:

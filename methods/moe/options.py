@@ -162,6 +162,8 @@ OPTIONS = Declaration(
     choice("dtype", "float32", "torch floating-point precision", ("float32", "float64")),
     whole("cpu_threads", 1, "torch intra-op threads on CPU while fitting and simulating; None = leave as is",
           low=1, nullable=True, message="{name}={value} must be a positive integer or None"),
+    flag("batch_grid", True, "train a grid's runs side by side in one batched loop (derivative loss only, "
+         "sim_weight = 0); false trains them one by one, as fit does", message="{name}={value} must be true or false"),
     flag("compile", True, "torch.compile the training step of long fits (>= 20,000 gradient steps; eager where "
          "torch.compile is missing or fails)", message="{name}={value} must be true or false"),
     # the searched hyperparameters' candidates (model selection tries their product, or the ranges they span)

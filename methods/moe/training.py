@@ -3,6 +3,7 @@ least-squares warm start; optionally plus the open-loop simulation error of shor
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -13,7 +14,7 @@ from enginebench.errors import MethodError
 from enginebench.methods.moe.fitted import MoEFitted, torch_dtype
 from enginebench.methods.moe.model import MixtureOfExperts, moe_loss
 from enginebench.methods.moe.options import SHOOTING_WINDOW_SAMPLES, resolve_params, window_steps
-from enginebench.methods.moe.preprocess import margin_matrix, prepare
+from enginebench.methods.moe.preprocess import Prepared, margin_matrix, prepare
 from enginebench.methods.moe.simulation import _Sim
 from enginebench.methods.moe.warmstart import lstsq_coefficients, warm_start
 from enginebench.methods.numerics.device import cpu_threads, resolve_device
@@ -39,8 +40,51 @@ def fit_mixture_path(
     draws (``rng`` gives the torch seed, then the probe points, before training), so model selection
     scores several epoch counts of one run: early stopping chosen on the validation simulation error.
     """
+    run = start_run(train, params, o, rng, checkpoints)
+    with cpu_threads(o["cpu_threads"], run.device):
+        shoot = None
+        if o["sim_weight"] > 0:
+            if o["scheduler_state"]:
+                raise MethodError(
+                    "method 'moe': sim_weight > 0 trains on simulated LPV trajectories; a state-scheduled "
+                    "(quasi-LPV) model is not supported: set scheduler_state=False or sim_weight=0"
+                )
+            p = run.prepared
+            shoot = _Shooting(p.Us, p.Z, p.T, o["shooting_window"], p.si, p.ei, p.stats["d_scale"])
+        _train(run.net, run.prepared.V, run.prepared.X, run.prepared.D, run.hp, o, run.gen, run.device, run.dtype,
+               shoot, fused=fused, compile=bool(o.get("compile", True)), checkpoints=run.checkpoints())
+    run.net.eval()
+    return run.packed
+
+
+@dataclass
+class Run:
+    """One training run set up and not yet trained: its network at the warm start, its torch generator
+    (the minibatch order), and ``pack``, which stores the network after an epoch count as a ``MoEFitted``."""
+
+    hp: dict[str, Any]
+    prepared: Prepared
+    net: MixtureOfExperts
+    gen: torch.Generator
+    device: torch.device
+    dtype: torch.dtype
+    epochs: tuple[int, ...]
+    pack: Callable[[list[float]], None]
+    packed: list[MoEFitted]
+
+    def checkpoints(self) -> dict[int, Callable[[list[float]], None]]:
+        """Epoch count -> ``pack``, as ``_train`` takes them."""
+        return {e: self.pack for e in self.epochs}
+
+
+def start_run(
+    train: Samples, params: Mapping[str, Any], o: Mapping[str, Any], rng: np.random.Generator,
+    checkpoints: Sequence[int], prepared: Prepared | None = None,
+) -> Run:
+    """Prepare the training samples (or take ``prepared``), draw the torch seed and the probe points from
+    ``rng``, build the network and start every expert at the least-squares model."""
     hp = resolve_params({**params, "epochs": max(checkpoints)})
-    p = prepare(train, o)
+    p = prepare(train, o) if prepared is None else prepared
     sign, d_scale, V, X = p.sign, p.stats["d_scale"], p.V, p.X
     margin = margin_matrix(o["max_time_constant"], sign, d_scale, train.target_names)
     device, dtype = resolve_device(o["device"], "method 'moe'"), torch_dtype(o["dtype"])
@@ -70,19 +114,7 @@ def fit_mixture_path(
             loss_history=list(history), derived=p.derived, init_info=init_info,
         ))
 
-    with cpu_threads(o["cpu_threads"], device):
-        shoot = None
-        if o["sim_weight"] > 0:
-            if o["scheduler_state"]:
-                raise MethodError(
-                    "method 'moe': sim_weight > 0 trains on simulated LPV trajectories; a state-scheduled "
-                    "(quasi-LPV) model is not supported: set scheduler_state=False or sim_weight=0"
-                )
-            shoot = _Shooting(p.Us, p.Z, p.T, o["shooting_window"], p.si, p.ei, d_scale)
-        _train(net, V, X, p.D, hp, o, gen, device, dtype, shoot, fused=fused, compile=bool(o.get("compile", True)),
-               checkpoints={int(e): pack for e in checkpoints})
-    net.eval()
-    return packed
+    return Run(hp, p, net, gen, device, dtype, tuple(sorted(int(e) for e in checkpoints)), pack, packed)
 
 
 class _Shooting:
