@@ -57,6 +57,23 @@ def test_predictions_transform_the_smaller_side_with_the_same_result() -> None:
     np.testing.assert_allclose(P, ref, rtol=0, atol=1e-9 * np.abs(ref).max())
 
 
+@pytest.mark.parametrize("krylov_maxiter", [0, None])
+def test_results_written_into_a_view_of_a_larger_array(krylov_maxiter: int | None) -> None:
+    """``out``: MTL-KRLS writes each gamma's predictions straight into its (rows, points, k) output."""
+    K, Ke, B = _problem(120, 30, 0.3)
+    rng = np.random.default_rng(2)
+    shifts, weights = 10.0 ** rng.uniform(-3, 2, (9, 2)), rng.uniform(-1, 1, (9, 2))
+    big = np.full((30, 20, 2), -7.0)
+    block = big[:, 5:14]
+    P, _ = shifted_solutions(K, B, shifts, weights, K_eval=Ke, krylov_maxiter=krylov_maxiter, out=block)
+    assert P is block
+    ref, _ = shifted_solutions(K, B, shifts, weights, K_eval=Ke, krylov_maxiter=krylov_maxiter)
+    np.testing.assert_array_equal(big[:, 5:14], ref)
+    assert (big[:, :5] == -7.0).all() and (big[:, 14:] == -7.0).all()
+    with pytest.raises(ValueError, match=r"shifted solutions: out has shape \(30, 8, 2\), expected \(30, 9, 2\)"):
+        shifted_solutions(K, B, shifts, weights, K_eval=Ke, out=big[:, :8])
+
+
 def test_one_dimensional_shifts_are_plain_ridge_solutions() -> None:
     K, _, B = _problem(60, 1, 1.0)
     lambdas = np.array([1e-2, 1.0])
