@@ -99,3 +99,24 @@ def test_compiled_side_by_side_equals_eager(monkeypatch):
         np.testing.assert_allclose(models[True][i].loss_history, models[False][i].loss_history, rtol=1e-9)
         for name, ref in models[False][i].weights.items():
             np.testing.assert_allclose(models[True][i].weights[name], ref, rtol=1e-6, atol=1e-9, err_msg=name)
+
+
+def test_a_failing_compiler_falls_back_to_the_eager_loss(monkeypatch):
+    """torch.compile is an optimisation: when its function raises, the step runs eagerly, same models."""
+    import torch
+
+    def broken(fn, **kwargs):
+        def raising(*args, **kw):
+            raise RuntimeError("no compiler here")
+        return raising
+
+    monkeypatch.setattr(grid_training, "COMPILE_MIN_STEPS", 0)
+    monkeypatch.setattr(grid_training, "_losses", {})
+    monkeypatch.setattr(torch, "compile", broken)
+    grid = GRID[:4]
+    models = {c: dict(MoE(scheduler=["v"], batch_size=128, dtype="float64", compile=c)
+                      .fit_grid(two_state_samples(), grid, np.random.default_rng(3))) for c in (True, False)}
+    for i in range(len(grid)):
+        assert models[True][i].loss_history == models[False][i].loss_history
+        for name, ref in models[False][i].weights.items():
+            np.testing.assert_array_equal(models[True][i].weights[name], ref, err_msg=name)
