@@ -28,9 +28,9 @@ a number gives seconds (``options.py``).
 Modules, one job each: ``options`` (defaults, checks, hyperparameters), ``preprocess``
 (training segments to schedulers, regressors and derivative targets), ``warmstart``
 (least-squares start), ``training`` (Adam on the seed's loss, simulation-error windows),
-``simulation`` (batched open-loop simulation), ``explain`` (local systems, frozen
-stability, gates, describe), ``model`` (the torch module), ``fitted`` (the trained
-record), ``method`` (the Method class).
+``grid`` (a grid's training runs side by side in one batched loop), ``simulation`` (batched
+open-loop simulation), ``explain`` (local systems, frozen stability, gates, describe),
+``model`` (the torch module), ``fitted`` (the trained record), ``method`` (the Method class).
 """
 
 from enginebench.methods.moe.explain import describe, frozen_stability, gate_weights, local_coefficients
