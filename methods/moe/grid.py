@@ -34,6 +34,10 @@ from enginebench.methods.moe.training import (
 )
 from enginebench.methods.numerics.device import cpu_threads
 
+SHUFFLED_COPY_BYTES = 1 << 30
+"""Largest per-epoch shuffled copy of the runs' training rows (runs x rows x columns); beyond it each
+step gathers its minibatches instead (the same rows in the same order, less memory)."""
+
 EXPERT_AXIS = {"w1": 0, "b1": 0, "w2": 0, "b2": 0, "gw2": 1, "gb2": 0}
 """The axis along experts of each parameter of ``MixtureOfExperts`` (the gate's first layer has none)."""
 
@@ -85,12 +89,19 @@ def train_side_by_side(runs: Sequence[Run], o: Mapping[str, Any]) -> None:
     compile = bool(o["compile"]) and -(-n // bs) * epochs >= COMPILE_MIN_STEPS
     loss_fn = _loss(template, names, shapes, o["competitive"], compile)
     histories: list[list[float]] = [[] for _ in runs]
+    width = Vt.shape[1] + Xt.shape[1] + Dt.shape[1]
+    whole_epoch = len(runs) * n * width * Vt.element_size() <= SHUFFLED_COPY_BYTES
     for epoch in range(1, epochs + 1):
         perm = torch.stack([torch.randperm(n, generator=run.gen) for run in runs]).to(device)
-        Vp, Xp, Dp = Vt[perm], Xt[perm], Dt[perm]
+        if whole_epoch:  # every run's rows shuffled once, then sliced; else gathered per step
+            Vp, Xp, Dp = Vt[perm], Xt[perm], Dt[perm]
         total = torch.zeros(len(runs), dtype=dtype, device=device)
         for a in range(0, n, bs):
-            v, x, d = Vp[:, a : a + bs], Xp[:, a : a + bs], Dp[:, a : a + bs]
+            if whole_epoch:
+                v, x, d = Vp[:, a : a + bs], Xp[:, a : a + bs], Dp[:, a : a + bs]
+            else:
+                rows = perm[:, a : a + bs]
+                v, x, d = Vt[rows], Xt[rows], Dt[rows]
             try:
                 losses = loss_fn(flat, buffers, v, x, d, beta)
             except Exception:  # noqa: BLE001 - torch.compile is an optimisation: without a working compiler, eager

@@ -120,3 +120,15 @@ def test_a_failing_compiler_falls_back_to_the_eager_loss(monkeypatch):
         assert models[True][i].loss_history == models[False][i].loss_history
         for name, ref in models[False][i].weights.items():
             np.testing.assert_array_equal(models[True][i].weights[name], ref, err_msg=name)
+
+
+def test_per_step_gathers_when_the_shuffled_copy_would_be_large(monkeypatch):
+    """Above SHUFFLED_COPY_BYTES the minibatches are gathered per step: the same rows, the same models."""
+    grid = GRID[:4]
+    ref = fit_both(grid)[True]
+    monkeypatch.setattr(grid_training, "SHUFFLED_COPY_BYTES", 0)
+    got = fit_both(grid)[True]
+    for i in range(len(grid)):
+        assert got[i].loss_history == ref[i].loss_history
+        for name, w in ref[i].weights.items():
+            np.testing.assert_array_equal(got[i].weights[name], w, err_msg=name)
