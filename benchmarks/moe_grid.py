@@ -26,6 +26,7 @@ from enginebench.datasets.samples import make_samples
 from enginebench.datasets.splits import make_splits
 from enginebench.experiments.jobs import subsample_segments
 from enginebench.experiments.spec import load_spec
+from enginebench.methods.base import grid_points
 from enginebench.methods.moe import MoE
 from enginebench.methods.moe import grid as grid_training
 from enginebench.methods.moe import training
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> None:
     opts = dict(load_spec("turboshaft-trq").method_options["moe-nfir"]["downstream_options"])
     opts["correct"] = {k: v for k, v in opts["correct"].items() if k in train.target_names + train.input_names}
     method = {flag: MoE(**opts, batch_grid=flag, compile=args.compile) for flag in (True, False)}
-    grid = _product(method[True].search_space(train), args.epochs)
+    grid = [{**point, "epochs": args.epochs} for point in grid_points(method[True].search_space(train))]
     print(f"MoE grid: {len(grid)} runs, {len(train):,} training rows ({len(train.segments)} trajectories), TRQ, "
           f"batch {method[True].options['batch_size']}, {args.epochs} epochs, compile {args.compile}, 1 thread; {_load()}")
     saved = training.COMPILE_MIN_STEPS, grid_training.COMPILE_MIN_STEPS
@@ -74,13 +75,6 @@ def main(argv: list[str] | None = None) -> None:
         float(np.max(np.abs(models[True][i].weights[k] - w))) for i, m in models[False].items() for k, w in m.weights.items()
     )
     print(f"  ratio one by one / side by side: {walls[False] / walls[True]:.2f}x; largest weight difference {worst:.2e}")
-
-
-def _product(space: dict[str, np.ndarray], epochs: int) -> list[dict]:
-    """Every combination of the search space's candidates, ``epochs`` fixed."""
-    names = [k for k in space if k != "epochs"]
-    grids = np.meshgrid(*[space[k] for k in names], indexing="ij")
-    return [{**{k: g.flat[i].item() for k, g in zip(names, grids)}, "epochs": epochs} for i in range(grids[0].size)]
 
 
 if __name__ == "__main__":

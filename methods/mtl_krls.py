@@ -235,7 +235,7 @@ class MTLKRLS(KRLS):
 
 def _columns(out: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
     """``out[:, idx]`` as a view when ``idx`` is a contiguous ascending range (a grid's gamma block), else None."""
-    if len(idx) and idx[-1] - idx[0] + 1 == len(idx) and np.all(np.diff(idx) == 1):
+    if len(idx) and idx[-1] - idx[0] + 1 == len(idx):  # idx ascends (flatnonzero): no gaps
         return out[:, idx[0] : idx[-1] + 1]
     return None
 

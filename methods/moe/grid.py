@@ -153,6 +153,7 @@ def _flatten(net: MixtureOfExperts, m: int, names: Sequence[str], shapes: Sequen
 
 
 def _views(flat: torch.Tensor, names: Sequence[str], shapes: Sequence[torch.Size]) -> dict[str, torch.Tensor]:
+    """Each parameter as a view of a run's vector (the inverse of ``_flatten``, padding kept)."""
     out, at = {}, 0
     for name, shape in zip(names, shapes):
         size = math.prod(shape)
@@ -205,7 +206,9 @@ class _Adam:
 
     def __init__(self, flat: torch.Tensor, lrs: Sequence[float], betas: tuple[float, float] = (0.9, 0.999),
                  eps: float = 1e-8) -> None:
-        self.flat, self.lrs, self.betas, self.eps, self.t = flat, list(lrs), betas, eps, 0
+        self.flat, self.betas, self.eps, self.t = flat, betas, eps, 0
+        # float64, so that -lr / bias correction rounds to the run's dtype as torch's Python-float step size does
+        self.neg_lr = -torch.tensor(list(lrs), dtype=torch.float64, device=flat.device)[:, None]
         self.m = torch.zeros_like(flat, memory_format=torch.preserve_format).detach()
         self.v = torch.zeros_like(self.m)
 
@@ -217,6 +220,6 @@ class _Adam:
         self.m.lerp_(g, 1 - b1)
         self.v.mul_(b2).addcmul_(g, g, value=1 - b2)
         bc1, bc2_sqrt = 1 - b1**self.t, (1 - b2**self.t) ** 0.5
-        step = torch.tensor([[-lr / bc1] for lr in self.lrs], dtype=self.flat.dtype, device=self.flat.device)
+        step = (self.neg_lr / bc1).to(self.flat.dtype)
         denom = (self.v.sqrt() / bc2_sqrt).add_(self.eps)
         self.flat.add_((step * self.m) / denom)
