@@ -22,6 +22,7 @@ from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.numerics.kernels import (check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
                                          standardize_rows)
+from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import ridge_solutions
 
 
@@ -142,7 +143,8 @@ class KRLS(Method):
 
         Squared distances are computed once; per distinct gamma one call of
         ``ridge_solutions`` (Lanczos, Cholesky or one tridiagonalisation) serves all of that
-        gamma's lambdas.
+        gamma's lambdas. Repeated training rows (a bootstrap resample's) are solved once, as
+        one weighted row (``numerics/repeats.py``): the same predictions from a smaller system.
         """
         pairs = [_params(p) for p in grid]
         scaler, Xs, yc, y_mean = self._train_arrays(train)
@@ -160,6 +162,9 @@ class KRLS(Method):
                 out[idx], _ = falkon_path(Xs, yc, Xe, gamma, lambdas[idx], int(self.options["centres"]), rng,
                                           device=self.options["device"])
             return out + y_mean
+        groups = RowGroups.of(Xs)  # a bootstrap's repeated rows: one weighted row each, same solutions
+        if groups is not None:
+            Xs, yc = Xs[groups.first], groups.targets(yc)
         D_train = sq_distances(Xs)
         D_eval = sq_distances(Xe, Xs)
         K_train = np.empty_like(D_train)
@@ -167,8 +172,11 @@ class KRLS(Method):
         n, k = yc.shape
         for gamma in dict.fromkeys(gammas.tolist()):  # distinct gammas, in order of first appearance
             idx = np.flatnonzero(gammas == gamma)
-            alpha, _ = ridge_solutions(gaussian(D_train, gamma, out=K_train), yc, lambdas[idx], overwrite=True)
-            pred = gaussian(D_eval, gamma, out=K_eval) @ alpha.reshape(n, len(idx) * k)
+            K, Ke = gaussian(D_train, gamma, out=K_train), gaussian(D_eval, gamma, out=K_eval)
+            if groups is not None:
+                groups.weigh(K, Ke)
+            alpha, _ = ridge_solutions(K, yc, lambdas[idx], overwrite=True)
+            pred = Ke @ alpha.reshape(n, len(idx) * k)
             out[idx] = pred.reshape(len(Xe), len(idx), k).transpose(1, 0, 2)
         out += y_mean
         return out

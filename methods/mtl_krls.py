@@ -56,6 +56,7 @@ from enginebench.methods.numerics.kernels import (Spectral, check_positive, gaus
                                          standardize_rows)
 from enginebench.methods.krls import KRLS, _check_finite
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
+from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import shifted_solutions
 
 HYPERPARAMETERS = ("gamma", "lambda", "theta")
@@ -200,7 +201,8 @@ class MTLKRLS(KRLS):
     # -- the whole grid -------------------------------------------------------------------
     def predict_grid(self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator) -> np.ndarray:
         """(n_grid, n_rows, k): per distinct gamma, one call of ``shifted_solutions`` (two shifts per
-        (lambda, theta)) serves the shared model's whole block; the y-task model takes one eigendecomposition."""
+        (lambda, theta)) serves the shared model's whole block; the y-task model takes one eigendecomposition.
+        Repeated training rows (a bootstrap resample's) are solved once, as one weighted row (``numerics/repeats.py``)."""
         triples = _grid_triples(grid)
         pm_params, scaler, Xs, yc, pc, offset = self._prepare(train)
         Xe = self._eval(data, pm_params, scaler)
@@ -209,6 +211,9 @@ class MTLKRLS(KRLS):
         out = np.empty((len(Xe), len(triples), yc.shape[1]))
         if not len(triples):
             return out.transpose(1, 0, 2)
+        groups = RowGroups.of(Xs)  # a bootstrap's repeated rows: one weighted row each, same solutions
+        if groups is not None:
+            Xs, yc, pc = Xs[groups.first], groups.targets(yc), groups.targets(pc)
         D_train, D_eval = sq_distances(Xs), sq_distances(Xe, Xs)
         K_train, K_eval = np.empty_like(D_train), np.empty_like(D_eval)
         for gamma in dict.fromkeys(triples[:, 0].tolist()):
@@ -216,6 +221,8 @@ class MTLKRLS(KRLS):
             block = _columns(out, idx)
             K = gaussian(D_train, gamma, out=K_train)
             Ke = gaussian(D_eval, gamma, out=K_eval)
+            if groups is not None:
+                groups.weigh(K, Ke)
             if self.options["predict_with"] == "shared":
                 shifts, weights = shared_poles(triples[idx, 1], triples[idx, 2])
                 pred, _ = shifted_solutions(K, yc + pc, shifts, weights, K_eval=Ke, overwrite=True, out=block)

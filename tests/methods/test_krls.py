@@ -480,3 +480,23 @@ def test_standardize_rows_is_the_scalers_transform_bit_for_bit(standardize: bool
     got = standardize_rows(scaler, blocks, extra)
     np.testing.assert_array_equal(got, scaler.transform(stacked))
     assert got.flags.c_contiguous and got.shape == stacked.shape
+
+
+def test_a_bootstrap_resamples_repeated_rows_are_solved_once(monkeypatch) -> None:
+    """predict_grid on a bootstrap draw (about a third repeats) merges repeated rows into weighted ones
+    (numerics/repeats.py): the same predictions as the full system over a wide grid."""
+    import enginebench.methods.krls as krls_module
+    from enginebench.methods.numerics.repeats import RowGroups
+
+    boot = TRAIN.take(np.sort(np.random.default_rng(7).integers(0, len(TRAIN), len(TRAIN))))
+    m = KRLS(gamma_grid=(-3, 2, 6), lambda_grid=(-4, 2, 7))
+    grid = grid_points(m.search_space(boot))
+    sizes = []
+    monkeypatch.setattr(krls_module, "RowGroups", type("Spy", (), {"of": staticmethod(
+        lambda X: sizes.append(len(X)) or RowGroups.of(X))}))
+    merged = m.predict_grid(boot, TEST, grid, RNG)
+    groups = RowGroups.of(StandardScaler().fit_transform(boot.X))
+    assert sizes == [len(TRAIN)] and groups is not None and len(groups.first) < 0.75 * len(TRAIN)
+    monkeypatch.setattr(krls_module, "RowGroups", type("Off", (), {"of": staticmethod(lambda X: None)}))
+    full = m.predict_grid(boot, TEST, grid, RNG)
+    np.testing.assert_allclose(merged, full, rtol=0, atol=1e-10 * np.abs(full).max())

@@ -184,3 +184,22 @@ def test_a_bad_grid_point_among_many_is_named(toy_samples, bad, message):
     with pytest.raises(MethodError) as err:
         MTLKRLS().predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
     assert str(err.value).startswith(message)
+
+
+@pytest.mark.parametrize("predict_with", ["shared", "task"])
+def test_a_bootstrap_resamples_repeated_rows_are_solved_once(toy_samples, monkeypatch, predict_with):
+    """Repeated training rows merge into weighted ones (numerics/repeats.py): the same grid predictions
+    as the full system, for the shared model (shifted solves) and the task model (eigenbasis)."""
+    import enginebench.methods.mtl_krls as mtl_module
+
+    train, test = toy_samples
+    boot = train.take(np.sort(np.random.default_rng(3).integers(0, len(train), len(train))))
+    method = MTLKRLS(gamma_grid=(-3, 1, 5), lambda_grid=(-4, 2, 4), theta_grid=(-3, 3, 4), predict_with=predict_with)
+    grid = grid_points(method.search_space(boot))
+    merged = method.predict_grid(boot, test.without_targets(), grid, np.random.default_rng(0))
+    monkeypatch.setattr(mtl_module, "RowGroups", type("Off", (), {"of": staticmethod(lambda X: None)}))
+    full = method.predict_grid(boot, test.without_targets(), grid, np.random.default_rng(0))
+    assert np.abs(merged - full).max() > 0  # a different (smaller) system was solved
+    # the task model diagonalises the full kernel, exactly singular with repeats: rounding ~1e-9 there
+    tol = 1e-10 if predict_with == "shared" else 1e-8
+    np.testing.assert_allclose(merged, full, rtol=0, atol=tol * np.abs(full).max())

@@ -88,3 +88,27 @@ def test_bad_shifts_and_weights_are_refused() -> None:
         shifted_solutions(K, B, np.array([[1.0, -1.0]]))
     with pytest.raises(MethodError, match="the weights contain nan/inf"):
         shifted_solutions(K, B, np.array([[1.0, 2.0]]), np.array([[1.0, np.nan]]))
+
+
+@pytest.mark.parametrize("m", [10, 400])  # K_eval transformed (m < J k) or the solutions (m >= J k)
+def test_many_shifts_take_the_tridiagonal_eigenbasis_with_the_same_result(monkeypatch, m: int) -> None:
+    """More distinct shifts than kernel rows (MTL-KRLS's ~2,600 per gamma): the Householder route
+    diagonalises T once instead of one tridiagonal solve per shift; both equal dense solves."""
+    from enginebench.methods.numerics import shifted
+
+    K, Ke, B = _problem(40, m, 0.3)
+    rng = np.random.default_rng(3)
+    shifts, weights = 10.0 ** rng.uniform(-4, 2, (30, 2)), rng.uniform(0, 1, (30, 2))  # 60 shifts > 40 rows
+    ref = _dense(K, B, shifts, weights)
+    results = {}
+    for per_row, route in [(1.0, "eigenbasis"), (1e9, "solves")]:
+        monkeypatch.setattr(shifted, "SPECTRAL_SHIFTS_PER_ROW", per_row)
+        calls = []
+        monkeypatch.setattr(shifted, "_tridiagonal_eigh", lambda d, e, f=shifted._tridiagonal_eigh: calls.append(1) or f(d, e))
+        X, counts = shifted_solutions(K, B, shifts, weights, krylov_maxiter=0)
+        P, _ = shifted_solutions(K, B, shifts, weights, K_eval=Ke, krylov_maxiter=0)
+        assert counts["householder"] == 60 and len(calls) == (2 if route == "eigenbasis" else 0)
+        np.testing.assert_allclose(X, ref, rtol=0, atol=1e-9 * np.abs(ref).max())
+        np.testing.assert_allclose(P, np.einsum("mn,njk->mjk", Ke, ref), rtol=0, atol=1e-9 * np.abs(P).max())
+        results[route] = P
+    np.testing.assert_allclose(results["eigenbasis"], results["solves"], rtol=0, atol=1e-10 * np.abs(ref).max())
