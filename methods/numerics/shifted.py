@@ -26,6 +26,8 @@ factorisations; measured 0.92 s at n = 1600 on one core):
 * Householder tridiagonalisation K = H T H^T (LAPACK dsytrd, ~0.3 s at n = 1600) turns
   every shifted system into an O(n) positive definite tridiagonal solve (LAPACK dptsv);
   H is applied once, to the combined solutions or to K_eval, whichever is smaller.
+  With more distinct shifts than rows (MTL-KRLS: ~2,600 per gamma), T = V diag(s) V^T
+  once (dstevd) instead: each grid point is then a filter sum_r w_jr / (s + mu_jr).
   Backward stable like eigh, no tolerance involved.
 """
 
