@@ -138,38 +138,47 @@ class _Householder:
         n, k = B.shape
         J = len(shifts)
         Z = self._apply("L", "T", B)
-        uniq, inv = np.unique(shifts, return_inverse=True)
-        inv = inv.reshape(shifts.shape)
         left = None if K_eval is None or len(K_eval) >= J * k else self._apply("R", "N", K_eval)  # smaller side
-        if len(uniq) > SPECTRAL_SHIFTS_PER_ROW * n:
+        if len(np.unique(shifts)) > SPECTRAL_SHIFTS_PER_ROW * n:
             s, V = self.spectrum()
-            filt = s[:, None] + shifts[:, 0]  # sum_r w_jr / (s_i + mu_jr), (n, J), without temporaries
-            np.divide(weights[:, 0], filt, out=filt)
-            term = np.empty_like(filt)
-            for r in range(1, shifts.shape[1]):
-                np.add(s[:, None], shifts[:, r], out=term)
-                filt += np.divide(weights[:, r], term, out=term)
-            Zt = V.T @ Z
-            if k == 1:
-                filt *= Zt
-                W = filt
-            else:
-                W = (filt[:, :, None] * Zt[:, None, :]).reshape(n, J * k)  # V^T (T + mu)^-1 Z, summed
+            W = _filtered(V.T @ Z, s, shifts, weights)  # in T's eigenbasis
             if left is not None:
                 return ((left @ V) @ W).reshape(-1, J, k)
             W = V @ W
         else:
-            # shift-major (S, n, k) and (J, n, k): contiguous copies and row gathers; for k = 1 the
-            # (n, J) view below is Fortran-ordered and BLAS takes it as is
-            Y = np.stack([self.solve(Z, float(mu)) for mu in uniq])
-            W = Y[inv[:, 0]] * weights[:, 0, None, None]
-            for r in range(1, shifts.shape[1]):
-                W += Y[inv[:, r]] * weights[:, r, None, None]
-            W = W.transpose(1, 0, 2).reshape(n, J * k)
+            W = self._summed_solves(Z, shifts, weights)
             if left is not None:
                 return (left @ W).reshape(-1, J, k)
         X = self._apply("L", "N", W)
         return X.reshape(n, J, k) if K_eval is None else (K_eval @ X).reshape(-1, J, k)
+
+    def _summed_solves(self, Z: np.ndarray, shifts: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """sum_r w_jr (T + mu_jr I)^-1 Z by one tridiagonal solve per distinct shift: (n, J k)."""
+        n, k = Z.shape
+        uniq, inv = np.unique(shifts, return_inverse=True)
+        inv = inv.reshape(shifts.shape)
+        # shift-major (S, n, k) and (J, n, k): contiguous copies and row gathers; for k = 1 the
+        # (n, J) view below is Fortran-ordered and BLAS takes it as is
+        Y = np.stack([self.solve(Z, float(mu)) for mu in uniq])
+        W = Y[inv[:, 0]] * weights[:, 0, None, None]
+        for r in range(1, shifts.shape[1]):
+            W += Y[inv[:, r]] * weights[:, r, None, None]
+        return W.transpose(1, 0, 2).reshape(n, len(shifts) * k)
+
+
+def _filtered(Zt: np.ndarray, s: np.ndarray, shifts: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Zt (n, k) times sum_r w_jr / (s + mu_jr) for every grid point j: (n, J k), built in place."""
+    n, k = Zt.shape
+    filt = s[:, None] + shifts[:, 0]
+    np.divide(weights[:, 0], filt, out=filt)
+    term = np.empty_like(filt)
+    for r in range(1, shifts.shape[1]):
+        np.add(s[:, None], shifts[:, r], out=term)
+        filt += np.divide(weights[:, r], term, out=term)
+    if k == 1:
+        filt *= Zt
+        return filt
+    return (filt[:, :, None] * Zt[:, None, :]).reshape(n, -1)
 
 
 def _tridiagonal_eigh(d: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
