@@ -26,8 +26,9 @@ factorisations; measured 0.92 s at n = 1600 on one core):
 * Householder tridiagonalisation K = H T H^T (LAPACK dsytrd, ~0.3 s at n = 1600) turns
   every shifted system into an O(n) positive definite tridiagonal solve (LAPACK dptsv);
   H is applied once, to the combined solutions or to K_eval, whichever is smaller.
-  With more distinct shifts than rows (MTL-KRLS: ~2,600 per gamma), T = V diag(s) V^T
-  once (dstevd) instead: each grid point is then a filter sum_r w_jr / (s + mu_jr).
+  With more than 4 n distinct shifts (MTL-KRLS on a bootstrap's ~630 distinct rows: ~2,600
+  per gamma), T = V diag(s) V^T once (dstevd) instead: each grid point is then a filter
+  sum_r w_jr / (s + mu_jr).
   Backward stable like eigh, no tolerance involved.
 """
 
@@ -51,8 +52,9 @@ KRYLOV_MIN_STEPS = 32
 """No early stop before this many Lanczos iterations (the first rates are too pessimistic)."""
 CHOLESKY_MAX_SHIFTS = 5
 """Up to this many shifts are solved by one Cholesky factorisation each (dsytrd costs ~5.5)."""
-SPECTRAL_SHIFTS_PER_ROW = 1.0
-"""The Householder route diagonalises T when it has more distinct shifts than this many per kernel row."""
+SPECTRAL_SHIFTS_PER_ROW = 4.0
+"""The Householder route diagonalises T when it has more distinct shifts than this many per kernel row
+(measured break-even on one core: 2 n shifts at n = 632 and 1000, 3 n at n = 1600)."""
 
 
 def krylov_budget(n: int, transformed_columns: int = 0) -> int:
