@@ -10,7 +10,7 @@ few dozen matrix-vector products (small or large gamma), not even that
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 from sklearn.preprocessing import StandardScaler
@@ -165,21 +165,30 @@ class KRLS(Method):
         groups = RowGroups.of(Xs)  # a bootstrap's repeated rows: one weighted row each, same solutions
         if groups is not None:
             Xs, yc = Xs[groups.first], groups.targets(yc)
-        D_train = sq_distances(Xs)
-        D_eval = sq_distances(Xe, Xs)
-        K_train = np.empty_like(D_train)
-        K_eval = np.empty_like(D_eval)
         n, k = yc.shape
-        for gamma in dict.fromkeys(gammas.tolist()):  # distinct gammas, in order of first appearance
-            idx = np.flatnonzero(gammas == gamma)
-            K, Ke = gaussian(D_train, gamma, out=K_train), gaussian(D_eval, gamma, out=K_eval)
-            if groups is not None:
-                groups.weigh(K, Ke)
+        for idx, K, Ke in gamma_kernels(Xs, Xe, gammas, groups):
             alpha, _ = ridge_solutions(K, yc, lambdas[idx], overwrite=True)
             pred = Ke @ alpha.reshape(n, len(idx) * k)
             out[idx] = pred.reshape(len(Xe), len(idx), k).transpose(1, 0, 2)
         out += y_mean
         return out
+
+
+def gamma_kernels(Xs: np.ndarray, Xe: np.ndarray, gammas: np.ndarray, groups: RowGroups | None
+                  ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per distinct gamma (in order of first appearance): its grid indices, the training kernel and
+    the evaluation kernel, weighted for repeated rows (``groups``, numerics/repeats.py).
+
+    Squared distances are computed once; the two kernels live in two buffers that each gamma
+    overwrites (a solver may factorise the training kernel in place).
+    """
+    D_train, D_eval = sq_distances(Xs), sq_distances(Xe, Xs)
+    K_train, K_eval = np.empty_like(D_train), np.empty_like(D_eval)
+    for gamma in dict.fromkeys(gammas.tolist()):
+        K, Ke = gaussian(D_train, gamma, out=K_train), gaussian(D_eval, gamma, out=K_eval)
+        if groups is not None:
+            groups.weigh(K, Ke)
+        yield np.flatnonzero(gammas == gamma), K, Ke
 
 
 def _params(params: Params) -> tuple[float, float]:

@@ -54,7 +54,7 @@ from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.numerics.kernels import (Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
                                          standardize_rows)
-from enginebench.methods.krls import KRLS, _check_finite
+from enginebench.methods.krls import KRLS, _check_finite, gamma_kernels
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
 from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import shifted_solutions
@@ -214,15 +214,8 @@ class MTLKRLS(KRLS):
         groups = RowGroups.of(Xs)  # a bootstrap's repeated rows: one weighted row each, same solutions
         if groups is not None:
             Xs, yc, pc = Xs[groups.first], groups.targets(yc), groups.targets(pc)
-        D_train, D_eval = sq_distances(Xs), sq_distances(Xe, Xs)
-        K_train, K_eval = np.empty_like(D_train), np.empty_like(D_eval)
-        for gamma in dict.fromkeys(triples[:, 0].tolist()):
-            idx = np.flatnonzero(triples[:, 0] == gamma)
+        for idx, K, Ke in gamma_kernels(Xs, Xe, triples[:, 0], groups):
             block = _columns(out, idx)
-            K = gaussian(D_train, gamma, out=K_train)
-            Ke = gaussian(D_eval, gamma, out=K_eval)
-            if groups is not None:
-                groups.weigh(K, Ke)
             if self.options["predict_with"] == "shared":
                 shifts, weights = shared_poles(triples[idx, 1], triples[idx, 2])
                 pred, _ = shifted_solutions(K, yc + pc, shifts, weights, K_eval=Ke, overwrite=True, out=block)
