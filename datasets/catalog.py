@@ -50,6 +50,12 @@ def _f16_import(directory: Path) -> Dataset:
     return import_f16(directory)
 
 
+def _gengine2_import(directory: Path) -> Dataset:
+    from enginebench.datasets.bosch_engine import import_gengine2
+
+    return import_gengine2(directory)
+
+
 def _turboshaft(size_arg: float, seed: int, progress: Callable[[float], None] | None) -> Dataset:
     from enginebench.datasets.turboshaft import generate
 
@@ -93,6 +99,18 @@ BUILTINS: dict[str, Builtin] = {
         targets=("Acceleration1", "Acceleration2", "Acceleration3"),
         notes={"import": "enginebench datasets import f16-gvt --from DIR (the folder with the four "
                          "F16Data_FullMSine_*.csv files)"},
+    ),
+    "bosch-gengine2": Builtin(
+        name="bosch-gengine2",
+        kind="real",
+        description="A real gasoline engine on a test bench (Bosch Research, gengine2): transient measurements at "
+                    "10 Hz, inputs speed, load, lambda, ignition; outputs pn, hc, nox, t_manifold, t_cat (all "
+                    "standardised); published split by measurement (0-15 train, 16-21 test)",
+        licence="CC BY-SA 4.0",
+        importer=_gengine2_import,
+        targets=("pn", "hc", "nox", "t_manifold", "t_cat"),
+        notes={"import": "enginebench datasets import bosch-gengine2 --from DIR (the folder with the headerless "
+                         "raw_0000NN_measurement_000000.csv files)"},
     ),
     "turboshaft": Builtin(
         name="turboshaft",

@@ -10,6 +10,9 @@ mistake is one :class:`SpecError` line starting with the spec's path.
 from __future__ import annotations
 
 import difflib
+import glob
+import json
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,8 +47,12 @@ KEYS = Declaration(
     text("name", None, "the dataset's name"),
     positive("dt", None, "sample period", unit="s", message=SECONDS),
     table("columns", None, 'column = { role = "input" | "output" | "internal" | "group", unit = "..." }'),
-    anything("files", None, "data files (CSV, TSV or Parquet), relative to the spec's folder",
-             type_label="list[str]"),
+    anything("files", None, "data files (CSV, TSV or Parquet), relative to the spec's folder; a name with * ? [ ] "
+             "is a glob (its matches in sorted order)", type_label="list[str]"),
+    flag("header", True, "the CSV files' first line names their fields; false: no header row, the fields are "
+         "named in file order by names (default: the [columns] order)"),
+    anything("names", None, "with header = false: the files' field names in file order (\"\" for a field not "
+             "read); default the [columns] names in declaration order", type_label="list[str]"),
     table("records", None, "[records.NAME] tables: a record read from columns of a file"),
     text("time", None, "the files' time column; absent: time = sample index x dt"),
     choice("time_unit", "s", "unit of the time column", (*TIME_UNITS, DATETIME),
@@ -92,6 +99,11 @@ class RecordSpec:
     time: str | None = None
 
 
+GLOB_CHARS = frozenset("*?[")
+POSITIONAL = "field {}"
+"""How a field of a headerless file that ``names`` leaves unnamed is called (1-based)."""
+
+
 @dataclass(frozen=True)
 class ImportSpec:
     """A checked import spec; ``files`` and record files are resolved against the spec's folder."""
@@ -116,6 +128,15 @@ class ImportSpec:
     rate_column: str | None = None
     period_column: str | None = None
     physical_model: Mapping[str, Any] | None = None  # the [physical_model] FMU table (datasets/fmu_spec.py)
+    header: bool = True
+    names: tuple[str, ...] = ()
+    """With ``header`` false: the field names of every file, in file order ("" for a field not read)."""
+
+    def field_name(self, position: int) -> str:
+        """The name of a headerless file's field at 0-based ``position``."""
+        if position < len(self.names) and self.names[position]:
+            return self.names[position]
+        return POSITIONAL.format(position + 1)
 
     def delimiter_for(self, file: Path) -> str:
         """The declared delimiter, else a tab for .tsv files and a comma otherwise."""
@@ -179,14 +200,45 @@ def _files(path: Path, doc: Mapping[str, Any]) -> tuple[Path, ...]:
         raise SpecError(
             f'{path}: files must be a non-empty list of file names, e.g. files = ["run1.csv"]; got {files!r}'
         )
-    resolved = tuple(path.parent / f for f in files)
-    if len(set(resolved)) < len(resolved):
-        twice = next(f for i, f in enumerate(files) if resolved[i] in resolved[:i])
-        raise SpecError(f"{path}: file {twice!r} is listed twice in files")
-    return resolved
+    plain = [path.parent / f for f in files if GLOB_CHARS.isdisjoint(f)]
+    for i, f in enumerate(plain):
+        if f in plain[:i]:
+            raise SpecError(f"{path}: file {os.path.relpath(f, path.parent)!r} is listed twice in files")
+    resolved: list[Path] = []
+    for f in files:
+        if GLOB_CHARS.isdisjoint(f):
+            resolved.append(path.parent / f)
+            continue
+        matches = sorted(Path(p) for p in glob.glob(str(path.parent / f)) if Path(p).is_file())
+        if not matches:
+            raise SpecError(
+                f"{path}: files pattern {f!r} matches no file in {path.parent}; patterns are relative to the spec's "
+                "folder (e.g. files = [\"raw_*.csv\"])"
+            )
+        resolved += [m for m in matches if m not in resolved and m not in plain]
+    return tuple(resolved)
 
 
-def _record(path: Path, name: str, table: Any, schema: Schema, time: str | None) -> RecordSpec:
+def _field_list(path: Path, where: str, fields: Any, schema: Schema, field_name: Any) -> dict[str, str]:
+    """A headerless record's ``columns = ["speed", "", ...]``: declared column -> the file field holding it."""
+    if not fields or not all(isinstance(f, str) for f in fields):
+        raise SpecError(f'{path}: {where} columns must list the file\'s fields in order, e.g. ["speed", "", "NOx"] '
+                        f'("" for a field not read); got {fields!r}')
+    out: dict[str, str] = {}
+    for i, logical in enumerate(fields):
+        if not logical:
+            continue
+        if logical not in schema:
+            raise SpecError(f"{path}: {where} columns: field {i + 1} {logical!r} is not declared in [columns]"
+                            f"{did_you_mean(logical, schema.names())}")
+        if logical in out:
+            raise SpecError(f"{path}: {where} columns: {logical!r} names two fields; name each field once")
+        out[logical] = field_name(i)
+    return out
+
+
+def _record(path: Path, name: str, table: Any, schema: Schema, time: str | None,
+            header: bool = True, field_name: Any = None) -> RecordSpec:
     """One ``[records.NAME]`` table, checked against the declared columns."""
     where = f"[records.{name}]"
     if not name.strip():
@@ -202,6 +254,15 @@ def _record(path: Path, name: str, table: Any, schema: Schema, time: str | None)
     if not isinstance(file, str) or not file.strip():
         raise SpecError(f'{path}: {where} needs file = "..." (the file holding its columns), got {file!r}')
     mapping = table.get("columns", {})
+    if isinstance(mapping, list):
+        if header:
+            raise SpecError(f"{path}: {where} columns is a list of fields in file order, which needs header = false "
+                            "(a file without a header row); with a header, map columns = { u = \"uEst\" }")
+        mapping = _field_list(path, where, mapping, schema, field_name)
+        missing = [c for c in schema.names() if c not in mapping]
+        if missing:
+            raise SpecError(f"{path}: {where} columns names no field for declared column(s) {', '.join(map(repr, missing))}; "
+                            "every record of a headerless file reads every declared column")
     if not isinstance(mapping, dict):
         raise SpecError(f'{path}: {where} columns must be a table such as {{ u = "uEst", y = "yEst" }}, got {mapping!r}')
     declared = schema.names()
@@ -232,7 +293,8 @@ def _record(path: Path, name: str, table: Any, schema: Schema, time: str | None)
     return RecordSpec(name=name, file=path.parent / file, columns=full, time=rec_time)
 
 
-def _records(path: Path, doc: Mapping[str, Any], schema: Schema, time: str | None) -> tuple[RecordSpec, ...]:
+def _records(path: Path, doc: Mapping[str, Any], schema: Schema, time: str | None,
+             header: bool = True, field_name: Any = None) -> tuple[RecordSpec, ...]:
     if "records" not in doc:
         return ()
     tables = doc["records"]
@@ -241,7 +303,33 @@ def _records(path: Path, doc: Mapping[str, Any], schema: Schema, time: str | Non
             f'{path}: records must hold [records.NAME] tables, e.g. [records.estimation] with file = "data.csv" '
             'and columns = { u = "uEst", y = "yEst" }'
         )
-    return tuple(_record(path, str(name), table, schema, time) for name, table in tables.items())
+    return tuple(_record(path, str(name), table, schema, time, header, field_name) for name, table in tables.items())
+
+
+def _names(path: Path, doc: Mapping[str, Any], schema: Schema, time: str | None, header: bool) -> tuple[str, ...]:
+    """The field names of headerless files: ``names``, else the [columns] names in declaration order."""
+    if "names" not in doc:
+        if header:
+            return ()
+        if time is not None:
+            raise SpecError(
+                f"{path}: header = false with time = {time!r}: give names = [...] with every field of the files in "
+                f"order, the time column among them, e.g. names = [{json.dumps(time)}, "
+                f"{', '.join(json.dumps(n) for n in schema.names()[:2])}, ...]"
+            )
+        return tuple(schema.names())
+    names = doc["names"]
+    if header:
+        raise SpecError(f"{path}: names applies to files without a header row; add header = false, or remove names "
+                        "(a header line names the fields)")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise SpecError(f'{path}: names must list the files\' fields in order, e.g. names = ["speed", "load", "NOx"] '
+                        f'("" for a field not read); got {names!r}')
+    seen = [n for n in names if n]
+    twice = next((n for i, n in enumerate(seen) if n in seen[:i]), None)
+    if twice is not None:
+        raise SpecError(f"{path}: names lists {twice!r} twice; each field has its own name")
+    return tuple(names)
 
 
 # -- the whole spec ----------------------------------------------------------------------------
@@ -326,7 +414,18 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         raise SpecError(f"{path}: rate_column and period_column are both {rate_column!r}; a column is one or the other")
     if not schema.outputs:
         raise SpecError(f'{path}: no column has role = "output"; declare at least one target in [columns]')
-    records = _records(path, doc, schema, time)
+    header = v["header"]
+    names = _names(path, doc, schema, time, header)
+    if not header and files:
+        absent = [c for c in (*schema.names(), *([time] if time else []), *([group] if group else [])) if c not in names]
+        if absent:
+            raise SpecError(f"{path}: names has no field {absent[0]!r}; with header = false, names lists every field "
+                            "of the files in order: the declared columns, the time and record columns")
+
+    def field_name(i: int) -> str:
+        return names[i] if i < len(names) and names[i] else POSITIONAL.format(i + 1)
+
+    records = _records(path, doc, schema, time, header, field_name)
     taken = {f.stem: f for f in files} if group is None else {}
     for rec in records:
         if rec.file in files:
@@ -360,4 +459,6 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         rate_column=rate_column,
         period_column=period_column,
         physical_model=parse_physical_model(doc.get("physical_model"), path),
+        header=header,
+        names=names,
     )

@@ -140,7 +140,11 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
         if rest_blank:
             raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
         raise DataError(f"{file}, line 1: blank; the header must be on line 1")
-    header = [h.strip() for h in next(csv.reader([first.rstrip("\r\n")], delimiter=delim))]
+    fields = [h.strip() for h in next(csv.reader([first.rstrip("\r\n")], delimiter=delim))]
+    if not spec.header:
+        return _read_headerless(file, spec, required, text_cols, fields, delim)
+    header = fields
+    _no_header_hint(file, header, required)
     pos = _check_header(file, header, required, delim)
     first_texts = None
     if second.strip():
@@ -161,7 +165,54 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
     return FileTable(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
 
 
-def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int]) -> pd.DataFrame:
+def _no_header_hint(file: Path, header: list[str], required: dict[str, str]) -> None:
+    """A first line of numbers read as a header: the file has no header row; say so and what to set."""
+    if all(h in header for h in required) or not header:
+        return
+    try:
+        [float(h) for h in header]
+    except ValueError:
+        return
+    raise DataError(
+        f"{file}, line 1: holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), not column "
+        f"names: the file has no header row; set header = false in the spec (its {len(header)} fields are then named "
+        "in file order by names = [...], default the [columns] order)"
+    )
+
+
+def _read_headerless(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str], first: list[str],
+                     delim: str) -> FileTable:
+    """A file without a header row: its fields named by ``spec.names`` (else "field k"), data from line 1."""
+    header = [spec.field_name(i) for i in range(len(first))]
+    missing = [c for c in required if c not in header]
+    if missing:
+        named = [n for n in spec.names if n]
+        raise DataError(
+            f"{file}, line 1: {len(first)} fields, but with header = false {required[missing[0]]} {missing[0]!r} "
+            f"is field {_field_position(spec, missing[0])} of the files' names ({len(named)} named); "
+            "give every field its name in file order (names = [...], or the [columns] order)"
+        )
+    pos = {h: i for i, h in enumerate(header)}
+    text_pos = sorted({pos[c] for c in text_cols})
+    raw = _parse_csv(file, delim, len(header), text_pos, header_row=False)
+    overflow = [
+        pos[c]
+        for c in required
+        if pos[c] not in text_pos
+        and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
+        and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
+    ]
+    if overflow:
+        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)), header_row=False)
+    return FileTable(raw, header, np.arange(len(raw)) + 1, "line", {}, first, pos)
+
+
+def _field_position(spec: ImportSpec, name: str) -> str:
+    at = [i + 1 for i, n in enumerate(spec.names) if n == name]
+    return str(at[0]) if at else "?"
+
+
+def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, header_row: bool = True) -> pd.DataFrame:
     """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
 
     Columns holding anything that is not a number come back as text, which
@@ -171,7 +222,7 @@ def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int]) -> pd
         return pd.read_csv(
             file,
             sep=delim,
-            header=0,
+            header=0 if header_row else None,
             names=[f"c{i}" for i in range(n_fields)],
             index_col=False,
             dtype={f"c{i}": str for i in text_pos},
@@ -182,7 +233,8 @@ def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int]) -> pd
         m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
         if m:
             raise DataError(
-                f"{file}, line {m.group(2)}: {m.group(3)} fields where the header has {m.group(1)} "
+                f"{file}, line {m.group(2)}: {m.group(3)} fields where the "
+                f"{'header' if header_row else 'first line'} has {m.group(1)} "
                 "(a stray delimiter or a decimal comma?); fix the row"
             ) from exc
         raise DataError(f"{file}: cannot parse the CSV ({one_line(str(exc))}); check delimiter and quoting") from exc
