@@ -11,8 +11,11 @@ B_j(q) = q^-nk (b_j0 + b_j1 q^-1 + ... ), the convention of identification textb
 (orders in samples; nk = 0 means a direct feedthrough from u(t)).
 
 Fitting: ordinary least squares on measured outputs (the one-step-ahead, equation-error
-estimate), by ``scipy.linalg.lstsq`` (LAPACK's SVD-based gelsd) on equilibrated columns,
-never normal equations. Regression rows start where every lag lies inside its training
+estimate). Every grid point of a fit is read from one Gram matrix of the grid's longest lags
+per target and solved by the corrected semi-normal equations (Cholesky of the equilibrated
+normal matrix plus one refinement step on the true residual; ``numerics/lag_gram.py``); a point
+whose equilibrated condition number exceeds 1e6 (or whose columns are dependent) is solved by
+``scipy.linalg.lstsq`` (LAPACK's SVD-based gelsd) on its own regression matrix instead. Regression rows start where every lag lies inside its training
 segment: lags never cross a segment boundary.
 
 Simulation: free run from the state initialisation window. The first lagged outputs are
@@ -47,6 +50,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.declare import Declaration, whole
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.methods.numerics.lag_gram import LagGram, Orders
 from enginebench.methods.freerun import (ENVELOPE, Envelope, GivenOrders, Trajectory, check_prediction_inputs,
                                          init_window, orders, padded_past, training_trajectories)
 
@@ -195,31 +199,56 @@ class ARX(GivenOrders, Method):
             values.append(int(v))
         return values[0], values[1], values[2]
 
-    def _fit(self, traj: list[Trajectory], train: Samples, na: int, nb: int, nk: int) -> ARXFit:
+    def _fit_points(self, traj: list[Trajectory], train: Samples,
+                    points: Sequence[tuple[int, int, int]]) -> list[ARXFit | MethodError]:
+        """Least squares per target for every (na, nb, nk) of ``points``; a point the data cannot carry is its error.
+
+        One Gram matrix of the points' longest lags per target (``numerics.lag_gram``) serves every
+        point; a point too ill-conditioned for it is solved by SVD on its own regression matrix.
+        """
         k, m = len(train.target_names), len(train.input_names)
-        a, b, c = np.zeros((k, na)), np.zeros((k, m, nb)), np.zeros(k)
-        n_rows = 0
+        orders = [Orders(*p) for p in points]
+        out: list[ARXFit | MethodError] = []
+        coefs = [(np.zeros((k, o.na)), np.zeros((k, m, o.nb)), np.zeros(k)) for o in orders]
+        rows = [0] * len(orders)
+        failed: dict[int, MethodError] = {}
+        longest = max(len(tr.Y) for tr in traj)
+        gram = LagGram([(tr.U, tr.Y) for tr in traj], orders)
         for target in range(k):
-            Phi, y = regression(traj, target, na, nb, nk)
-            if len(y) < Phi.shape[1]:
-                longest = max(len(tr.Y) for tr in traj)
-                raise MethodError(
-                    f"method {NAME!r}: orders na={na}, nb={nb}, nk={nk} leave {len(y)} regression rows for "
-                    f"{Phi.shape[1]} parameters (longest training segment {longest} rows); use lower orders")
-            theta = least_squares(Phi, y)
-            a[target] = theta[:na]
-            b[target] = theta[na:na + m * nb].reshape(m, nb)
-            c[target] = theta[-1]
-            n_rows = len(y)
+            for i, o in enumerate(orders):
+                if i in failed:
+                    continue
+                n_params = o.na + m * o.nb + 1
+                rows[i] = gram.rows(o)
+                if rows[i] < n_params:
+                    failed[i] = MethodError(
+                        f"method {NAME!r}: orders na={o.na}, nb={o.nb}, nk={o.nk} leave {rows[i]} regression rows for "
+                        f"{n_params} parameters (longest training segment {longest} rows); use lower orders")
+                    continue
+                theta = gram.solve(o, target)
+                if theta is None:
+                    theta = least_squares(*regression(traj, target, o.na, o.nb, o.nk))
+                a, b, c = coefs[i]
+                a[target] = theta[:o.na]
+                b[target] = theta[o.na:o.na + m * o.nb].reshape(m, o.nb)
+                c[target] = theta[-1]
         env = Envelope.around(np.vstack([tr.Y for tr in traj]), float(self.options["envelope"]))
-        return ARXFit(na=na, nb=nb, nk=nk, a=a, b=b, c=c, input_names=tuple(train.input_names),
-                      target_names=tuple(train.target_names), envelope=env, n_rows=n_rows)
+        for i, o in enumerate(orders):
+            if i in failed:
+                out.append(failed[i])
+                continue
+            a, b, c = coefs[i]
+            out.append(ARXFit(na=o.na, nb=o.nb, nk=o.nk, a=a, b=b, c=c, input_names=tuple(train.input_names),
+                              target_names=tuple(train.target_names), envelope=env, n_rows=rows[i]))
+        return out
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> ARXFit:
         """Least squares per target on every training segment. Deterministic: ``rng`` is not drawn from."""
         self.check_mode(train.mode)
-        na, nb, nk = self._orders_of(params)
-        return self._fit(training_trajectories(NAME, train), train, na, nb, nk)
+        (fitted,) = self._fit_points(training_trajectories(NAME, train), train, [self._orders_of(params)])
+        if isinstance(fitted, MethodError):
+            raise fitted
+        return fitted
 
     def predict(self, fitted: ARXFit, data: Samples) -> SegmentPredictions:
         """Free run of every segment from its init window; predictions at the evaluated rows."""
@@ -247,14 +276,11 @@ class ARX(GivenOrders, Method):
         self.check_mode(train.mode)
         traj = training_trajectories(NAME, train)
         out = np.empty((len(grid), len(data), len(train.target_names)))
-        for i, params in enumerate(grid):
-            orders = self._orders_of(params)
-            try:
-                fitted = self._fit(traj, train, *orders)
-            except MethodError:  # orders the fitting pieces cannot carry: this point scores +inf, the others go on
+        fits = self._fit_points(traj, train, [self._orders_of(p) for p in grid])
+        for i, fitted in enumerate(fits):
+            if isinstance(fitted, MethodError):  # orders the fitting pieces cannot carry: +inf, the others go on
                 out[i] = np.nan
-                continue
-            if data.segments:
+            elif data.segments:
                 out[i] = np.concatenate(self.predict(fitted, data))
         return out
 
