@@ -42,17 +42,18 @@ The lag helpers and the memory estimate (``estimate_memory``, ``MemoryEstimate``
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
 
 from enginebench.datasets.samples import Samples
-from enginebench.declare import listing, whole
+from enginebench.declare import whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, SegmentPredictions, split_rows
 from enginebench.methods.numerics.kernels import Spectral, check_positive, gaussian, sq_distances
+from enginebench.methods.input_history import HISTORY_OPTIONS, InputHistory
 from enginebench.methods.krls import KRLS, KRLSFitted
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
                                              lag_feature_names, lagged_inputs, memory_ladder, nfir_lags)
@@ -92,7 +93,7 @@ class NFIRFitted:
     """The memory estimate on the fitting data when the horizons were derived (``horizons = None``)."""
 
 
-class NFIR(KRLS):
+class NFIR(InputHistory, KRLS):
     """Kernel regression of the output on a window of past run-time inputs (no past outputs)."""
 
     name = "nfir"
@@ -105,88 +106,15 @@ class NFIR(KRLS):
              "(the kernel is exp(-(gamma / d) |x - x'|^2)) (low, high, count)", searches=("gamma",)),
         grid("lambda_grid", (-8, 0, 9), "ridge penalties searched: log10 of lambda (low, high, count)",
              searches=("lambda",)),
-        listing("horizons", None, "input windows searched; None = derived from the data's input->output memory "
-                "(M/2, M, 2M samples)", items="float", low=0, nullable=True, unit="s", searches=("horizon",),
-                message="{name} must be a non-empty list of seconds >= 0 or None (derive from the data), got {value}"),
-        listing("strides", None, "lag strides searched (with every horizon); None = the stride keeping at most "
-                "max_lags lags per input", items="int", low=1, nullable=True, unit="samples", searches=("stride",),
-                message="{name} must be a non-empty list or None (derive from the data) of whole numbers of samples "
-                        ">= 1, got {value}"),
-        whole("max_lags", 16, "lags per input (lag 0 included) when the stride is derived", low=2),
+        *HISTORY_OPTIONS[:3],
         whole("max_rows", 1000, "training rows the kernel is fitted on (a draw of the job's generator; 0 = all)",
               low=0, unit="rows", message="{name} must be an integer >= 0 (0 = all rows), got {value}"),
-        listing("inputs", None, "run-time input columns to lag; None = all", items="str", nullable=True,
-                message="{name} must be a list of input column names or None, got {value}"),
+        HISTORY_OPTIONS[3],
     )
-
-    def __init__(self, **options: Any) -> None:
-        super().__init__(**options)
-        self._memory_cache: tuple[tuple, MemoryEstimate] | None = None
-
-    # -- horizons from the data -------------------------------------------------------------
-    def memory(self, data: Samples) -> MemoryEstimate:
-        """The input -> output memory of ``data`` (training samples with targets); cached for the same data."""
-        names, cols = self._columns(data)
-        self._check_inputs(data, names, cols)
-        if not data.has_targets:
-            raise MethodError("method 'nfir': deriving the horizons needs training samples with targets")
-        for s in data.segments:
-            if not np.isfinite(s.y).all():
-                row, col = np.argwhere(~np.isfinite(s.y))[0]
-                raise MethodError(f"method 'nfir': segment {s.id!r} has nan/inf in target {data.target_names[col]!r} "
-                                  f"at row {int(s.rows[row])}; clean or drop it")
-        key = (float(data.dt), tuple(cols), int(self.options["max_lags"]),
-               tuple((s.id, len(s.U), len(s.rows), int(s.rows[0]) if len(s.rows) else -1) for s in data.segments),
-               float(np.sum(data.y)))
-        cache = getattr(self, "_memory_cache", None)
-        if cache is not None and cache[0] == key:
-            return cache[1]
-        est = estimate_memory([s.U[:, cols] for s in data.segments], [s.rows for s in data.segments],
-                              [s.y for s in data.segments], int(self.options["max_lags"]))
-        self._memory_cache = (key, est)
-        return est
 
     def search_space(self, data: Samples) -> SearchSpace:
         """Horizons (s) and strides as given, else derived (see the module docstring); then gamma, lambda."""
-        space = super().search_space(data)
-        o = self.options
-        if o["horizons"] is None:
-            horizons = np.array([h * data.dt for h in self.memory(data).grid])
-        else:
-            horizons = np.array([float(h) for h in o["horizons"]])
-        out: SearchSpace = {"horizon": horizons}
-        if o["strides"] is not None:
-            out["stride"] = np.array([int(s) for s in o["strides"]])
-        return {**out, **space}
-
-    # -- features -------------------------------------------------------------------------
-    def _columns(self, data: Samples) -> tuple[tuple[str, ...], list[int]]:
-        names = tuple(data.input_names if self.options["inputs"] is None else self.options["inputs"])
-        missing = [c for c in names if c not in data.input_names]
-        if missing:
-            raise MethodError(
-                f"method 'nfir': option inputs names {', '.join(missing)}, which are not run-time inputs of the data "
-                f"({', '.join(data.input_names)})"
-            )
-        if not names:
-            raise MethodError("method 'nfir': no input to lag; the data have no run-time input columns")
-        return names, [data.input_names.index(c) for c in names]
-
-    @staticmethod
-    def _check_inputs(data: Samples, names: Sequence[str], cols: list[int]) -> None:
-        for s in data.segments:
-            if not np.isfinite(s.U[:, cols]).all():
-                row, col = np.argwhere(~np.isfinite(s.U[:, cols]))[0]
-                raise MethodError(
-                    f"method 'nfir': segment {s.id!r} has nan/inf in input {names[col]!r} at row {row}; clean or drop it"
-                )
-
-    def lagged(self, data: Samples, lags: np.ndarray, columns: list[int] | None = None) -> Samples:
-        """``data`` with X replaced by the lagged inputs at each segment's evaluated rows."""
-        names, cols = self._columns(data) if columns is None else (tuple(data.input_names[c] for c in columns), columns)
-        self._check_inputs(data, names, cols)
-        segs = tuple(replace(s, X=lagged_inputs(s.U[:, cols], lags, s.rows)) for s in data.segments)
-        return replace(data, segments=segs, feature_names=lag_feature_names(names, lags))
+        return {**self.history_space(data), **super().search_space(data)}
 
     def _kernel_rows(self, train: Samples, rng: np.random.Generator) -> np.ndarray:
         """Training rows used by the kernel: all, or ``max_rows`` drawn without replacement (sorted)."""
@@ -196,20 +124,7 @@ class NFIR(KRLS):
         return np.sort(rng.choice(n, size=m, replace=False))
 
     def _params(self, params: Params, dt: float) -> tuple[np.ndarray, float, int, float, float]:
-        missing = [k for k in ("horizon", "gamma", "lambda") if k not in params]
-        if missing:
-            raise MethodError(
-                f"method 'nfir': hyperparameter(s) {', '.join(missing)} missing from {dict(params)!r}; "
-                "give horizon (s), gamma and lambda (and optionally stride, samples)"
-            )
-        unknown = sorted(set(params) - {"horizon", "stride", "gamma", "lambda"})
-        if unknown:
-            raise MethodError(f"method 'nfir': unknown hyperparameter(s) {', '.join(unknown)}; it has horizon, stride, gamma, lambda")
-        horizon = float(params["horizon"])
-        nfir_lags(horizon, 1, dt)  # checks the horizon
-        stride = params["stride"] if "stride" in params else bounded_stride(horizon_samples(horizon, dt),
-                                                                              self.options["max_lags"])
-        lags = nfir_lags(horizon, stride, dt)
+        lags, horizon, stride = self.history_params(params, dt, ("gamma", "lambda"))
         gamma = float(check_positive(params["gamma"], "gamma")[0])
         lam = float(check_positive(params["lambda"], "lambda")[0])
         return lags, horizon, int(stride), gamma, lam
@@ -257,12 +172,7 @@ class NFIR(KRLS):
             "kernel_rows": fitted.n_rows,
             "bibo_stable": True,
         }
-        memory = getattr(fitted, "memory", None)
-        if memory is not None:
-            out["horizons_derived"] = memory.describe(fitted.dt)
-            if memory.warnings():
-                out["warnings"] = memory.warnings()
-        return out
+        return {**out, **self.history_description(getattr(fitted, "memory", None), fitted.dt)}
 
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
