@@ -162,7 +162,7 @@ def prepare_curve(spec: ExperimentSpec, months: Sequence[float], rows: str = "pr
         method = registry.get(name)(**spec.method_options.get(name, {}))
         method.check_mode(spec.mode)
         methods[name] = method
-    ds, dataset_hash = load_dataset(spec)
+    ds, dataset_hash, spec = load_dataset(spec)
     pm = physical_model_for(ds)
     splits = make_splits(ds, **spec.split)
     min_rows = int(round(max(spec.windows) / ds.dt)) + 1
@@ -250,6 +250,7 @@ def run_learning_curve(
     workers = check_workers(workers)
     check_executor(executor, scheduler)
     curve = prepare_curve(spec, months, rows)
+    spec = curve.context.spec  # targets = "all" resolved
     config, digest = curve_config(spec, months, rows)
     run = store.create(f"{spec.name}-learning-curve", config, digest, environment.capture(spec.seed, workers),
                        curve.n_jobs())

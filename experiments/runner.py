@@ -60,8 +60,9 @@ def needed_columns(schema: Schema, spec: ExperimentSpec) -> list[str]:
     return [c for c in schema.names() if c in keep]
 
 
-def load_dataset(spec: ExperimentSpec) -> tuple[Dataset, str]:
-    """The experiment's dataset with its roles applied (only the needed columns), and the stored data's hash.
+def load_dataset(spec: ExperimentSpec) -> tuple[Dataset, str, ExperimentSpec]:
+    """The experiment's dataset with its roles applied (only the needed columns), the stored data's hash, and
+    the spec with ``targets = "all"`` resolved to the dataset's output columns.
 
     A Parquet-backed dataset is read with column projection and hashed by the content
     hash stored in its footer (the hash of the data as stored, before re-roling).
@@ -71,17 +72,19 @@ def load_dataset(spec: ExperimentSpec) -> tuple[Dataset, str]:
         ds = catalog.load(spec.dataset, variant=spec.dataset_variant)
         dataset_hash = ds.content_hash()
         ds = ds.with_roles(spec.roles) if spec.roles else ds
+        spec = spec.with_outputs(ds.schema.outputs)
         check_targets(ds.schema, spec.targets)
-        return ds, dataset_hash
+        return ds, dataset_hash, spec
     doc = read_metadata(path)
     schema = Schema.from_dict(doc["schema"])
     roled = schema.with_roles(spec.roles) if spec.roles else schema
+    spec = spec.with_outputs(roled.outputs)
     check_targets(roled, spec.targets)  # before reading, against every stored column
     columns = needed_columns(roled, spec)
     ds = read_dataset(path, columns=columns)
     if spec.roles:
         ds = ds.with_roles({k: v for k, v in spec.roles.items() if k in columns})
-    return ds, str(doc.get("content_hash", ""))
+    return ds, str(doc.get("content_hash", "")), spec
 
 
 def prepare(spec: ExperimentSpec) -> Context:
@@ -96,7 +99,7 @@ def prepare(spec: ExperimentSpec) -> Context:
         method = cls(**spec.method_options.get(name, {}))
         method.check_mode(spec.mode)
         methods[name] = method
-    ds, dataset_hash = load_dataset(spec)
+    ds, dataset_hash, spec = load_dataset(spec)
     pm = physical_model_for(ds)
     splits = make_splits(ds, **spec.split)
     name = ds.name
@@ -249,6 +252,7 @@ def run_experiment(
     check_executor(executor, scheduler)
     if resume is None:
         ctx = prepare(spec)
+        spec = ctx.spec  # targets = "all" resolved
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
                            len(plan(ctx)), tags=tags)
         run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx))

@@ -36,10 +36,10 @@ from __future__ import annotations
 import hashlib
 import json
 import tomllib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from enginebench.datasets.samples import MODES
 from enginebench.declare import (Declaration, Invalid, anything, choice, did_you_mean, flag, is_number, listing, number,
@@ -47,6 +47,9 @@ from enginebench.declare import (Declaration, Invalid, anything, choice, did_you
 from enginebench.errors import SpecError
 from enginebench.experiments.search import SEARCHES
 
+ALL_TARGETS = "all"
+"""``targets = "all"`` (a string, not a list): every column of role output. A column named "all"
+is named in a list: ``targets = ["all"]``."""
 SELECTION_KINDS = ("bootstrap", "kfold", "validation", "none")
 CRITERIA = ("mae", "rmae", "rmse")
 INTERVALS = ("t", "bootstrap")
@@ -96,7 +99,9 @@ TOP = Declaration(
     text("dataset", None, "built-in dataset name, .parquet file or .toml import spec (relative to the spec's folder)",
          message="'dataset' must be a dataset name or a file path"),
     anything("dataset_variant", "", "a variant of the dataset (e.g. a generator size)"),
-    anything("targets", None, "target column(s)", check=_names("column names"), type_label="list[str]"),
+    anything("targets", None, "target column(s); \"all\" = every output column of the dataset",
+             check=_names("column names"), type_label="list[str] | \"all\""),
+    flag("all_targets", False, "set by targets = \"all\" (every output column); resolved when the data are read"),
     choice("mode", "static", "static (inputs at t), window (inputs over the windows), simulation (free run)", MODES,
            message="mode {value} is not one of " + ", ".join(MODES)),
     anything("windows", [0], "window lengths (mode window)", check=_windows, unit="s", type_label="list[float >= 0]"),
@@ -177,7 +182,7 @@ SPLITS: dict[str, Declaration] = {
 SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
 
 
-DEFAULT_ONLY_IN_HASH = {"init_samples": 0}
+DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
 SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50}
 """The same for [selection] keys: earlier runs' configs (and hashes) stay as they were."""
@@ -218,6 +223,17 @@ class ExperimentSpec:
     description: str = ""
     dataset_variant: str = ""
     init_samples: int = 0
+    all_targets: bool = False
+    """``targets = "all"``: every output column of the dataset, resolved when the data are read
+    (:meth:`with_outputs`); a stored run's config holds the resolved list."""
+
+    def with_outputs(self, outputs: Sequence[str]) -> "ExperimentSpec":
+        """The spec with ``targets = "all"`` resolved to the dataset's output columns (unchanged otherwise)."""
+        if not self.all_targets:
+            return self
+        if not outputs:
+            raise SpecError(f"experiment {self.name!r}: targets = \"all\" but the dataset has no output column")
+        return replace(self, targets=tuple(outputs), all_targets=False)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -284,6 +300,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
     if base_dir is not None and Path(dataset).suffix in (".parquet", ".toml") and not Path(dataset).is_absolute():
         dataset = str((base_dir / dataset).resolve())
     targets, methods, mode, windows = v["targets"], v["methods"], v["mode"], v["windows"]
+    all_targets = raw["targets"] == ALL_TARGETS or bool(raw.get("all_targets", False))
     twice = sorted({t for t in targets if targets.count(t) > 1})
     _expect(not twice, origin, f"'targets' lists {', '.join(map(repr, twice))} more than once")
     _expect(len(set(methods)) == len(methods), origin, "'methods' lists a method twice")
@@ -306,7 +323,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         train_size=v["train_size"], interval=v["interval"], roles=dict(v["roles"]), split=split, selection=selection,
         method_options={k: dict(v) for k, v in method_options.items()},
         description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
-        init_samples=init_samples,
+        init_samples=init_samples, all_targets=all_targets,
     )
 
 
