@@ -21,8 +21,12 @@ from enginebench.cli.options import check_metrics, check_output, emit, split_lis
 @click.option("--width", type=click.IntRange(min=40), default=None,
               help="Columns of the term table: its blocks split their metric columns to fit "
                    "[default: the terminal's width, 80 when it is not known].")
+@click.option("--by-record", "by_record", is_flag=True,
+              help="One column per test record (the first --metrics metric, default nrmse in simulation mode, else mae) "
+                   "and the mean over records with its 95% t interval (n = records); term or csv.")
 @store_option
-def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, width, store) -> None:
+def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, width, by_record: bool,
+          store) -> None:
     """Print the comparison table of RUN (an id, a unique prefix, 'latest' or a run folder).
 
     csv is the long table: one row per dataset, target, mode, window, method, split and
@@ -38,6 +42,8 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
 
     check_output(output)
     run = RunStore(store).get(run_ref)
+    if by_record:
+        return _by_record(run, split_list(metrics), fmt, output, width)
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     summary = tables.summarize(raw, interval=interval)
@@ -73,6 +79,29 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     if notes and fmt not in ("term", "md"):  # csv, LaTeX and HTML stay parseable: the notes go to stderr
         for line in notes:
             click.echo(line, err=True)
+
+
+def _by_record(run, metrics: list[str], fmt: str, output, width) -> None:
+    from enginebench.results.records import PER_SEGMENT, record_frame, record_table, to_rich
+    from enginebench.results.units import run_units
+
+    metric = metrics[0] if metrics else ("nrmse" if run.config().get("mode") == "simulation" else "mae")
+    if metric not in PER_SEGMENT:
+        raise click.UsageError(f"--by-record shows one of {', '.join(PER_SEGMENT)} per record, got --metrics {metric}")
+    frame = record_frame(run.job_metas())
+    result = record_table(frame, metric)
+    if result.empty:
+        raise click.ClickException(f"run {run.id} keeps no per-record results (runs made before they were kept, or "
+                                   "parts of more than 200 segments); rerun it to get them")
+    if fmt == "csv":
+        emit(result.to_csv(index=False), output)
+        return
+    if fmt != "term":
+        raise click.UsageError("--by-record prints term or csv tables")
+    console = Console(width=width) if width else Console()
+    for t in to_rich(result, metric, run_units(run.info())):
+        console.print(t)
+        console.print()
 
 
 def paired_lines(tests, metric: str, width: int | None = None) -> str:

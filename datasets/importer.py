@@ -7,6 +7,10 @@ relative to the spec file. Every key::
     dt = 1.0                           # required: sample period, seconds
     files = ["run1.csv", "run2.csv"]   # CSV (.csv .txt .tsv .dat) or Parquet (.parquet .pq); each file is a
                                        # record (a segment) named after its stem. Optional when [records] is given.
+                                       # A name with * ? [ is a glob: its matches, in sorted order
+    header = false                     # optional (default true): the CSV files have no header row; their fields
+                                       # are named in file order by names, else by the [columns] order
+    names = ["speed", "", "nox"]       # optional, with header = false: every field's name ("" = not read)
     time = "t"                         # optional: the time column. Without it time is the sample index x dt,
                                        # from 0 in every record (dt is then the only timing information)
     time_unit = "s"                    # s | ms | min | h, or "datetime" for ISO 8601 stamps (only with time)
@@ -41,6 +45,7 @@ relative to the spec file. Every key::
     [records.test]
     file = "bench.csv"                 # records of one file may differ in length: a shorter record's
     columns = { u = "uVal", y = "yVal" }  # columns end in blank cells, which are ignored
+    # with header = false a record may list the file's fields instead: columns = ["", "", "u", "y"]
 
 Roles are ``input``, ``output``, ``internal`` and ``group`` (see
 :mod:`enginebench.datasets.schema`); at least one output is needed. Group columns may

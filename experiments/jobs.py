@@ -24,7 +24,7 @@ from enginebench.errors import MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.methods.base import Method
-from enginebench.results.metrics import compute_metrics, mean_abs
+from enginebench.results.metrics import compute_metrics, mean_abs, per_segment
 from enginebench.results.store import SELECTION_META
 
 
@@ -252,6 +252,11 @@ def caught_warnings(caught: list[warnings.WarningMessage]) -> list[str]:
                                       if len(out) > MAX_JOB_WARNINGS else [])
 
 
+MAX_RECORDED_SEGMENTS = 200
+"""Parts with at most this many segments keep each segment's RMSE, NRMSE and MAE in the job's metadata
+(``meta["segments"]``), for the per-record tables; longer lists of short segments are summarised only."""
+
+
 def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, method: Method,
              base: dict[str, Any], meta: dict[str, Any], timings: dict[str, float]) -> list[dict[str, Any]]:
     """The body of ``run_job``: metric rows, with ``meta`` and ``timings`` filled in; never raises."""
@@ -295,6 +300,9 @@ def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, met
                         f"(first: {bad[0]})"
                     )
                 values, notes = compute_metrics(truth, guess, scale)
+                if len(truth) <= MAX_RECORDED_SEGMENTS:  # where in the campaign the error lies: one entry per record
+                    kept = meta.setdefault("segments", {}).setdefault(part_name, {"ids": list(part.segment_ids())})
+                    kept[name] = per_segment(truth, guess)
                 values["diverged"] = float(diverged.sum())
                 for metric, value in values.items():
                     rows.append({**base, "target": name, "split": part_name, "metric": metric, "value": float(value)})

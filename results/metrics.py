@@ -396,6 +396,21 @@ def _segment_nrmse(t: np.ndarray, p: np.ndarray, lengths: np.ndarray) -> np.ndar
     return out
 
 
+PER_SEGMENT = ("rmse", "nrmse", "mae")
+"""The metrics kept per evaluated segment (a test record) in each job's metadata."""
+
+
+def per_segment(segments_true: Sequence[object], segments_pred: Sequence[object]) -> dict[str, list[float]]:
+    """RMSE, NRMSE (the segment's own output SD; nan when it is constant) and MAE of each segment, and its rows."""
+    t, p, lengths = _segments(segments_true, segments_pred)
+    starts = _starts(lengths)
+    with np.errstate(over="ignore", invalid="ignore"):
+        sq = np.add.reduceat(np.square(p - t), starts) / lengths
+        ab = np.add.reduceat(np.abs(p - t), starts) / lengths
+    return {"rmse": np.sqrt(sq).tolist(), "nrmse": _segment_nrmse(t, p, lengths).tolist(), "mae": ab.tolist(),
+            "n": lengths.astype(int).tolist()}
+
+
 def segment_rmae(
     segments_true: Sequence[object], segments_pred: Sequence[object], train_scale: float
 ) -> np.ndarray:
