@@ -131,6 +131,28 @@ def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[
              if scatters else [])
 
 
+def _map_section(page: _Page, simulated: Sequence[Any], units: dict[str, str]) -> None:
+    """Each simulated target's free-run RMSE over the operating map of the first two run-time inputs."""
+    from enginebench.results.interactive import operating_map_figure
+    from enginebench.results.operating_map import operating_map
+
+    figures = []
+    for sim in simulated:
+        names = list(sim.train_inputs)
+        if len(names) < 2 or not sim.sims:
+            continue
+        x, y = (np.concatenate([seg[n] for seg in sim.inputs]) for n in names[:2])
+        m = operating_map(x, y, np.concatenate(sim.truth), {k: np.concatenate(v) for k, v in sim.sims.items()},
+                          sim.train_inputs[names[0]], sim.train_inputs[names[1]], names=(names[0], names[1]))
+        where = f"{sim.target}, split {sim.split}"
+        figures.append(page.figure(
+            operating_map_figure(m, title=f"{where}: free-run error over {names[0]} x {names[1]}",
+                                 unit=units.get(sim.target, "")),
+            f"{where}: RMSE per bin of {names[0]} x {names[1]} on the simulated {sim.part} records "
+            f"({', '.join(sim.segment_ids)}), beside where the training rows lie"))
+    page.add("map", "Error over the operating map", figures)
+
+
 def _table_section(page: _Page, summary: pd.DataFrame, metrics: Sequence[str], units: dict[str, str]) -> None:
     from enginebench.results.interactive import header, sortable_table
     from enginebench.results.units import window_header
@@ -285,6 +307,7 @@ def write_interactive_report(
                     raise
                 result.notes.append(f"prediction figures skipped: {exc}")
         _prediction_sections(page, _series(predictions or [], simulated or []), units, max_points)
+        _map_section(page, simulated or [], units)
     elif opts.figures:
         result.notes.append("learning-curve run: no prediction figures (each amount of data is its own model); "
                             f"its curve is in {REPORT_FILE}")

@@ -85,6 +85,8 @@ class Simulated:
     gate: list[np.ndarray] | None = None
     gate_label: str = ""
     """The method whose ``explain`` weights ``gate`` holds ('' when none declares them)."""
+    train_inputs: dict[str, np.ndarray] = field(default_factory=dict)
+    """The first inputs over the repetition's training rows (for the operating map)."""
 
 
 def simulate_run(
@@ -123,7 +125,9 @@ def simulate_run(
                         [s.id for s in shown.segments], [s.t[s.rows] for s in shown.segments],
                         [s.y[:, 0] for s in shown.segments],
                         [{c: s.U[s.rows, j] for j, c in enumerate(shown.input_names[:max_inputs])}
-                         for s in shown.segments])
+                         for s in shown.segments],
+                        train_inputs={c: np.concatenate([s.U[s.rows, j] for s in train.segments])
+                                      for j, c in enumerate(train.input_names[:2])})
         for name in chosen:
             job = Job(target, window, split, name, repetition)
             method = ctx.methods[name]

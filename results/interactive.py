@@ -225,6 +225,45 @@ def scatter_figure(
     return fig
 
 
+def operating_map_figure(m, *, title: str = "", unit: str = ""):
+    """Heat maps of an ``operating_map.OperatingMap``: the training rows per bin, then each method's RMSE per bin
+    (one shared colour scale); bins with evaluated rows but no training row are marked x (extrapolation)."""
+    from plotly.subplots import make_subplots
+
+    go = _go()
+    methods = list(m.rmse)
+    panels = ["training rows"] + [f"{k}: RMSE" for k in methods]
+    cols = min(3, len(panels))
+    nrows = math.ceil(len(panels) / cols)
+    fig = make_subplots(rows=nrows, cols=cols, subplot_titles=panels, horizontal_spacing=0.08, vertical_spacing=0.14)
+    xc, yc = 0.5 * (m.x_edges[1:] + m.x_edges[:-1]), 0.5 * (m.y_edges[1:] + m.y_edges[:-1])
+    finite = np.concatenate([v[np.isfinite(v)] for v in m.rmse.values()]) if methods else np.empty(0)
+    top = float(finite.max()) if finite.size else 1.0
+    ey, ex = np.nonzero(m.extrapolated)
+    for k, name in enumerate(panels):
+        r, c = k // cols + 1, k % cols + 1
+        if k == 0:
+            z, scale, zmax, bar = np.where(m.train_rows > 0, m.train_rows, np.nan), "Greys", None, None
+            hover = "training rows %{z}<extra></extra>"
+        else:
+            z, scale, zmax = m.rmse[methods[k - 1]], "Viridis", top
+            bar = {"title": f"RMSE{f' [{unit}]' if unit else ''}", "len": 0.8} if k == 1 else None
+            hover = "RMSE %{z:.4g}<extra></extra>"
+        fig.add_trace(go.Heatmap(x=xc, y=yc, z=z, colorscale=scale, zmin=0, zmax=zmax, showscale=bar is not None,
+                                 colorbar=bar, hovertemplate=f"{m.x_name} %{{x:.3g}}, {m.y_name} %{{y:.3g}}<br>{hover}"),
+                      row=r, col=c)
+        if len(ex):
+            fig.add_trace(go.Scatter(x=xc[ex], y=yc[ey], mode="markers", marker={"symbol": "x", "color": "red", "size": 9},
+                                     name="no training rows", showlegend=k == 0, hoverinfo="skip"), row=r, col=c)
+        fig.update_xaxes(title_text=m.x_name, row=r, col=c)
+        fig.update_yaxes(title_text=m.y_name, row=r, col=c)
+    fig.update_layout(title=_title(title, "bins over the range of the training and evaluated rows; x: evaluated "
+                                          "rows but no training row (extrapolation)"),
+                      height=320 * nrows + 120, margin={"l": 60, "r": 20, "t": 110, "b": 50},
+                      legend={"orientation": "h", "y": -0.08, "x": 0})
+    return fig
+
+
 def strip_figure(rows: pd.DataFrame, *, title: str = "", y_label: str = "value"):
     """One point per repetition per method (columns method, repetition, value; optional ``block``, one trace each)."""
     go = _go()

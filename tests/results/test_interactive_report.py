@@ -407,3 +407,22 @@ def test_clicking_a_header_sorts_the_table_by_value(tmp_path):
     assert 'data-asc="d,c,a,b"' in dom  # by number (0.3 < 2 < 10.5, not as text), "n/a" last
     rows = re.findall(r"<tr><td>(\w)</td>", dom)
     assert rows == ["a", "c", "d", "b"]  # the second click sorts descending, "n/a" still last
+
+
+def test_simulation_page_maps_each_methods_error_over_the_first_two_inputs(simulation_pages):
+    from enginebench.results.operating_map import operating_map
+
+    _, (static, page, _notes) = simulation_pages
+    text = page.path.read_text()
+    assert "Error over the operating map" in text
+    sim = static.simulated[0]
+    names = list(sim.train_inputs)[:2]
+    maps = [f for f in _figures(text) if "free-run error over" in str(f["layout"].get("title", ""))]
+    assert len(maps) == 1
+    heat = [t for t in maps[0]["data"] if t["type"] == "heatmap"]
+    assert len(heat) == 1 + len(sim.sims)  # training rows, then one RMSE map per method drawn
+    x, y = (np.concatenate([seg[n] for seg in sim.inputs]) for n in names)
+    expected = operating_map(x, y, np.concatenate(sim.truth), {k: np.concatenate(v) for k, v in sim.sims.items()},
+                             sim.train_inputs[names[0]], sim.train_inputs[names[1]])
+    got = np.array(_values(heat[1]["z"]) if not isinstance(heat[1]["z"], list) else heat[1]["z"], dtype=float)
+    np.testing.assert_allclose(got.reshape(10, 10), expected.rmse[list(sim.sims)[0]], equal_nan=True)
