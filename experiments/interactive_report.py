@@ -131,6 +131,25 @@ def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[
              if scatters else [])
 
 
+def _importance_section(page: _Page, run: Run, units: dict[str, str]) -> None:
+    """Input importances of the methods whose ``describe`` gives ``importance.targets[T].by_input`` (first repetition)."""
+    from enginebench.results.interactive import importance_figure
+
+    found: dict[str, dict[str, dict[str, float]]] = {}
+    for meta in run.job_metas().values():
+        targets = ((meta.get("describe") or {}).get("importance") or {}).get("targets") or {}
+        if meta.get("status") != "ok" or meta.get("repetition", 0) != 0:
+            continue
+        for target, imp in targets.items():
+            if isinstance(imp, dict) and isinstance(imp.get("by_input"), dict):
+                found.setdefault(target, {})[str(meta.get("method"))] = imp["by_input"]
+    figures = [page.figure(importance_figure(v, title=f"{t}: input importance", unit=units.get(t, "")),
+                           f"{t}: how much each method's training RMSE grows when one input's whole history is "
+                           "shuffled across rows (permutation importance, repetition 0)")
+               for t, v in sorted(found.items())]
+    page.add("importance", "Input importance", figures)
+
+
 def _map_section(page: _Page, simulated: Sequence[Any], units: dict[str, str]) -> None:
     """Each simulated target's free-run RMSE over the operating map of the first two run-time inputs."""
     from enginebench.results.interactive import operating_map_figure
@@ -311,6 +330,7 @@ def write_interactive_report(
     elif opts.figures:
         result.notes.append("learning-curve run: no prediction figures (each amount of data is its own model); "
                             f"its curve is in {REPORT_FILE}")
+    _importance_section(page, run, units)
     _strip_section(page, raw, metrics, units)
     missing = _validation_section(page, run)
     if missing:

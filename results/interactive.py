@@ -264,6 +264,21 @@ def operating_map_figure(m, *, title: str = "", unit: str = ""):
     return fig
 
 
+def importance_figure(importance: Mapping[str, Mapping[str, float]], *, title: str = "", unit: str = ""):
+    """Horizontal bars: per method, how much the error grows when each input is shuffled (``describe``'s
+    ``importance``)."""
+    go = _go()
+    fig = go.Figure()
+    for k, (method, values) in enumerate(importance.items()):
+        names = list(values)[::-1]
+        fig.add_trace(go.Bar(x=[values[n] for n in names], y=names, orientation="h", name=method,
+                             marker={"color": PALETTE[k % len(PALETTE)]}))
+    fig.update_layout(title=_title(title), barmode="group", height=140 + 40 * max(len(v) for v in importance.values()),
+                      margin={"l": 110, "r": 20, "t": 70, "b": 50},
+                      xaxis_title=f"RMSE increase when shuffled{f' [{unit}]' if unit else ''}")
+    return fig
+
+
 def strip_figure(rows: pd.DataFrame, *, title: str = "", y_label: str = "value"):
     """One point per repetition per method (columns method, repetition, value; optional ``block``, one trace each)."""
     go = _go()
