@@ -36,7 +36,8 @@ def methods_show(name: str, plugins) -> None:
 
     load_plugins(plugins)
     cls = get(name)
-    click.echo(f"{cls.name}  ({cls.family}; modes: {', '.join(sorted(cls.modes))})")
+    joint = "; joint targets: yes" if getattr(cls, "joint_targets", False) else ""
+    click.echo(f"{cls.name}  ({cls.family}; modes: {', '.join(sorted(cls.modes))}{joint})")
     click.echo(f"class: {cls.__module__}.{cls.__qualname__}")
     doc = inspect.getdoc(cls)
     if doc:

@@ -28,6 +28,10 @@ from enginebench.results.metrics import compute_metrics, mean_abs, per_segment
 from enginebench.results.store import SELECTION_META
 
 
+JOINT = "(all targets)"
+"""The target of a job that fits every target of the experiment at once (``joint_targets``)."""
+
+
 @dataclass(frozen=True)
 class Job:
     target: str
@@ -71,6 +75,24 @@ class Context:
     dataset_hash: str = ""
     finish: Callable[[Any], None] | None = None
     """Called with the run once every job is stored (a learning curve writes its summary table)."""
+
+
+def joint_methods(spec: ExperimentSpec, methods: dict[str, Method]) -> set[str]:
+    """The methods that fit all targets in one job: ``joint_targets`` asked for, several targets, and the
+    method declares it can."""
+    if not spec.joint_targets or len(spec.targets) < 2:
+        return set()
+    return {name for name, m in methods.items() if getattr(m, "joint_targets", False)}
+
+
+def job_for(ctx: Context, target: str, window: float, split: str, method: str, repetition: int
+            ) -> tuple[Job, Problem, int]:
+    """The job that scored ``method`` on ``target``, its problem and the target's column in its samples:
+    the target's own job, or the joint job of a method that fitted all targets at once."""
+    joint = (JOINT, window, split)
+    if joint in ctx.problems and method in joint_methods(ctx.spec, ctx.methods):
+        return Job(JOINT, window, split, method, repetition), ctx.problems[joint], list(ctx.spec.targets).index(target)
+    return Job(target, window, split, method, repetition), ctx.problems[(target, window, split)], 0
 
 
 def stable_int(text: str) -> int:

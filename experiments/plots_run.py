@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from enginebench.errors import EngineBenchError, MethodError
-from enginebench.experiments.jobs import Job, refit_stored_job, training_samples
+from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
 from enginebench.methods.base import EXPLAIN_WEIGHTS, Method
@@ -115,12 +115,15 @@ def simulate_run(
     out: list[Simulated] = []
     notes: list[str] = []
     for (target, window, split), problem in ctx.problems.items():
+        if target == JOINT:  # drawn target by target below
+            continue
         if part not in problem.parts:
             raise MethodError(f"run {run.id}: split {split!r} has no {part!r} part; it has {', '.join(problem.parts)}")
         train = training_samples(spec, problem, repetition, split)
         data = problem.parts[part].materialize()
         order = np.argsort([-len(s) for s in data.segments], kind="stable")[:trajectories]
-        shown = data.take(np.concatenate([_segment_rows(data, int(k)) for k in sorted(order)]))
+        rows = np.concatenate([_segment_rows(data, int(k)) for k in sorted(order)])
+        shown = data.take(rows)
         sim = Simulated(target, window, split, part, repetition, float(np.mean(np.abs(train.y))),
                         [s.id for s in shown.segments], [s.t[s.rows] for s in shown.segments],
                         [s.y[:, 0] for s in shown.segments],
@@ -129,18 +132,21 @@ def simulate_run(
                         train_inputs={c: np.concatenate([s.U[s.rows, j] for s in train.segments])
                                       for j, c in enumerate(train.input_names[:2])})
         for name in chosen:
-            job = Job(target, window, split, name, repetition)
+            job, own, col = job_for(ctx, target, window, split, name, repetition)
             method = ctx.methods[name]
+            fit_on, given = (train, shown) if own is problem else (
+                training_samples(spec, own, repetition, split), own.parts[part].materialize().take(rows))
             try:
-                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
-                preds = method.predict(fitted, shown.without_targets())
+                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), fit_on)
+                preds = method.predict(fitted, given.without_targets())
                 if sim.gate is None:
-                    sim.gate = weights_of(method, fitted, shown.without_targets())
+                    sim.gate = weights_of(method, fitted, given.without_targets())
                     sim.gate_label = name if sim.gate is not None else ""
             except (EngineBenchError, ValueError, RuntimeError, FloatingPointError) as exc:
                 notes.append(f"{name}: not drawn ({type(exc).__name__}: {exc})")
                 continue
-            sim.sims[name] = [np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0] for p, s in zip(preds, shown.segments)]
+            sim.sims[name] = [np.asarray(p, dtype=float).reshape(len(s), -1)[:, col]
+                              for p, s in zip(preds, shown.segments)]
             sim.diverged[name] = np.asarray(getattr(preds, "diverged", np.zeros(len(preds), dtype=bool)), dtype=bool)
         if sim.sims:
             out.append(sim)

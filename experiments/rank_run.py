@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import MethodError
-from enginebench.experiments.jobs import stable_int, subsample
+from enginebench.experiments.jobs import JOINT, stable_int, subsample
 from enginebench.experiments.ranking import rank_features
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
@@ -24,6 +24,8 @@ def rank_run(run: Run, methods: list[str] | None = None, repetition: int = 0) ->
     if unknown:
         raise MethodError(f"run {run.id} did not run method(s) {', '.join(unknown)}; it ran {', '.join(ctx.methods)}")
     for (target, window, split), problem in ctx.problems.items():
+        if target == JOINT:  # features are ranked target by target
+            continue
         sub_rng = np.random.default_rng([spec.seed, repetition, stable_int(split)])
         train = problem.train.take(subsample(len(problem.train), spec.train_size, sub_rng))
         for name in chosen:

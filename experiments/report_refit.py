@@ -61,7 +61,7 @@ def refit_predictions(
     draws afresh (selection is not replayed). Parts longer than ``max_rows`` are thinned
     to evenly spaced rows. Returns the predictions and notes on what was skipped.
     """
-    from enginebench.experiments.jobs import Job, refit_stored_job, training_samples
+    from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples
     from enginebench.experiments.plots_run import weights_of
     from enginebench.experiments.runner import prepare
     from enginebench.experiments.spec import from_dict
@@ -79,6 +79,8 @@ def refit_predictions(
     out: list[Predictions] = []
     notes: list[str] = []
     for (target, window, split), problem in ctx.problems.items():
+        if target == JOINT:  # drawn target by target below
+            continue
         if part not in problem.parts:
             notes.append(f"{target}, window {window:g} s, split {split}: no {part!r} part; not drawn")
             continue
@@ -94,13 +96,15 @@ def refit_predictions(
         segment = np.concatenate([np.full(len(s), k) for k, s in enumerate(shown.segments)])
         for name in chosen:
             where = f"{name} ({target}, window {window:g} s, {split}, repetition {repetition})"
-            job = Job(target, window, split, name, repetition)
+            job, own, col = job_for(ctx, target, window, split, name, repetition)
+            fit_on, given = (train, shown) if own is problem else (
+                training_samples(spec, own, repetition, split), own.parts[part].take(rows))
             try:
-                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), train)
-                preds = ctx.methods[name].predict(fitted, shown.without_targets())
-                pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(s), -1)[:, 0]
+                fitted = refit_stored_job(ctx, job, run.job_meta(job.key), fit_on)
+                preds = ctx.methods[name].predict(fitted, given.without_targets())
+                pred = np.concatenate([np.asarray(p, dtype=float).reshape(len(s), -1)[:, col]
                                        for p, s in zip(preds, shown.segments)])
-                weights = weights_of(ctx.methods[name], fitted, shown.without_targets())
+                weights = weights_of(ctx.methods[name], fitted, given.without_targets())
             except REFIT_ERRORS as exc:
                 notes.append(f"{where}: re-fit failed ({type(exc).__name__}: {exc}); not drawn")
                 continue

@@ -13,7 +13,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from enginebench.datasets import catalog
 from enginebench.datasets.dataset import Dataset
@@ -25,7 +25,7 @@ from enginebench.datasets.splits import make_splits
 from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
 from enginebench.experiments.executors import check_executor, default_workers, run_dask, run_local
-from enginebench.experiments.jobs import Context, Job, Problem
+from enginebench.experiments.jobs import JOINT, Context, Job, Problem, joint_methods
 from enginebench.experiments.search import check_search
 from enginebench.experiments.selection import record_blocks
 from enginebench.experiments.spec import ExperimentSpec, from_dict
@@ -120,6 +120,14 @@ def prepare(spec: ExperimentSpec) -> Context:
                  for part, raw in raws[split].items()}
         train = pools.pop("train")
         problems[(target, window, split)] = Problem(train=train, parts=pools)
+    if joint_methods(spec, methods):
+        if JOINT in spec.targets:
+            raise SpecError(f"target {JOINT!r} is the name of the joint jobs; rename the column to run joint_targets")
+        for window, split in itertools.product(spec.windows, raws):
+            pools = {part: SamplePool(raw, list(spec.targets), spec.mode, window, physical_model=pm,
+                                      init_samples=0 if part == "train" else spec.init_samples)
+                     for part, raw in raws[split].items()}
+            problems[(JOINT, window, split)] = Problem(train=pools.pop("train"), parts=pools)
     check_protocol(spec, problems)
     return Context(spec=spec, dataset=name, problems=problems, methods=methods, dataset_hash=dataset_hash)
 
@@ -177,16 +185,21 @@ def spill_problems(ctx: Context, directory: Path, min_bytes: int | None = None) 
 
 
 def plan(ctx: Context) -> list[Job]:
-    """Every job of the run, in a stable order (repetition outermost so early results cover all methods)."""
+    """Every job of the run, in a stable order (repetition outermost so early results cover all methods).
+
+    A method fitting all targets at once has one job per (window, split, repetition), target ``JOINT``.
+    """
     spec = ctx.spec
     splits = sorted({key[2] for key in ctx.problems}, key=list({k[2]: 0 for k in ctx.problems}).index)
+    joint = {m for m in joint_methods(spec, ctx.methods) if any(k[0] == JOINT for k in ctx.problems)}
     return [
         Job(target, window, split, method, rep)
         for rep in range(spec.repetitions)
-        for target in spec.targets
+        for target in (*spec.targets, JOINT)
         for window in spec.windows
         for split in splits
         for method in spec.methods
+        if (target == JOINT) == (method in joint) and (target, window, split) in ctx.problems
     ]
 
 

@@ -28,9 +28,14 @@ def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.nd
 
     ``mae`` pools rows; ``rmae`` averages each segment's MAE (the training-scale divisor
     of RMAE is common to all grid points, so it does not change the ranking).
-    Non-finite predictions score +inf.
+    Non-finite predictions score +inf. With several targets (a joint job) each target's
+    errors are divided by its standard deviation over ``data`` first, so that outputs in
+    different units weigh alike (one target: the scores are in its unit, as always).
     """
     err = np.abs(predictions - data.y[None])
+    if data.y.shape[1] > 1:
+        sd = data.y.std(axis=0)
+        err = err / np.where(sd > 0, sd, 1.0)
     if criterion == "mae":
         score = err.mean(axis=(1, 2))
     elif criterion == "rmse":

@@ -102,6 +102,8 @@ TOP = Declaration(
     anything("targets", None, "target column(s); \"all\" = every output column of the dataset",
              check=_names("column names"), type_label="list[str] | \"all\""),
     flag("all_targets", False, "set by targets = \"all\" (every output column); resolved when the data are read"),
+    flag("joint_targets", False, "methods that model several outputs jointly (Method.joint_targets) fit one job for "
+         "all targets, selecting one point on the error summed over targets, each over its standard deviation"),
     choice("mode", "static", "static (inputs at t), window (inputs over the windows), simulation (free run)", MODES,
            message="mode {value} is not one of " + ", ".join(MODES)),
     anything("windows", [0], "window lengths (mode window)", check=_windows, unit="s", type_label="list[float >= 0]"),
@@ -182,7 +184,7 @@ SPLITS: dict[str, Declaration] = {
 SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
 
 
-DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False}
+DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False, "joint_targets": False}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
 SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50}
 """The same for [selection] keys: earlier runs' configs (and hashes) stay as they were."""
@@ -223,6 +225,8 @@ class ExperimentSpec:
     description: str = ""
     dataset_variant: str = ""
     init_samples: int = 0
+    joint_targets: bool = False
+    """Methods declaring ``joint_targets`` get one job per (window, split, repetition) for all targets."""
     all_targets: bool = False
     """``targets = "all"``: every output column of the dataset, resolved when the data are read
     (:meth:`with_outputs`); a stored run's config holds the resolved list."""
@@ -323,7 +327,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         train_size=v["train_size"], interval=v["interval"], roles=dict(v["roles"]), split=split, selection=selection,
         method_options={k: dict(v) for k, v in method_options.items()},
         description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
-        init_samples=init_samples, all_targets=all_targets,
+        init_samples=init_samples, all_targets=all_targets, joint_targets=v["joint_targets"],
     )
 
 

@@ -159,6 +159,7 @@ class ARX(GivenOrders, Method):
 
     name = NAME
     family = "baseline"
+    joint_targets = True
     modes = frozenset({"simulation"})
     summary = "linear ARX (order, delay searched), least squares, simulated in free run from the init window"
 

@@ -72,6 +72,11 @@ class Method:
     model simulated from the raw inputs ``U``): the toolkit then builds no feature rows for the parts it
     evaluates and hands it ``X`` with no columns. ``check_method`` checks the claim."""
 
+    joint_targets: ClassVar[bool] = False
+    """True for a method that models several targets at once (``fit`` and ``predict`` take samples
+    with k targets and share the work between them): with the experiment's ``joint_targets = true``
+    it runs one job for all targets, its hyperparameters selected on the summed, scale-free error."""
+
     declared_options: ClassVar[Declaration] = Declaration()
     """Every constructor option: default, kind, accepted values, unit and meaning."""
 

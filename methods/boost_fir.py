@@ -64,6 +64,7 @@ class BoostFIR(InputHistory, Method):
 
     name = NAME
     family = "data-driven"
+    joint_targets = True
     modes = frozenset({"simulation", "static"})
     summary = ("gradient-boosted trees (scikit-learn) on lagged inputs only: a free-running virtual sensor; "
                "horizons derived from the data's memory")

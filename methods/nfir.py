@@ -98,6 +98,7 @@ class NFIR(InputHistory, KRLS):
 
     name = "nfir"
     family = "data-driven"
+    joint_targets = True
     modes = frozenset({"simulation", "static"})
     summary = "nonlinear FIR: KRLS on lagged inputs only (BIBO-stable); horizons derived from the data's memory (samples)"
 

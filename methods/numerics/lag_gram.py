@@ -57,10 +57,12 @@ def lag_columns(Y: np.ndarray, U: np.ndarray, rows: np.ndarray, o: Orders) -> np
 
 
 class LagGram:
-    """The Gram matrix of the longest lags of ``points`` over the segments (U_s, Y_s), every target at once.
+    """The Gram matrices of the longest lags of ``points`` over the segments (U_s, Y_s), every target at once.
 
-    Z = [u_j lags 0..Pu-1 per input | 1 | per target: y lags 1..Py | per target: y]: the input
-    columns, shared by every target's problem, enter the product once.
+    Z_u = [u_j lags 0..Pu-1 per input | 1] is shared by every target's problem: its Gram block
+    is formed once. Each target k adds Z_k = [its y lags 1..Py | y_k]: the blocks Z_k^T Z_u and
+    Z_k^T Z_k. A target's numbers never depend on the other targets (the same products, in the
+    same order, as a fit of that target alone), so a joint fit equals the per-target fits exactly.
     """
 
     def __init__(self, segments: Sequence[tuple[np.ndarray, np.ndarray]], points: Sequence[Orders]) -> None:
@@ -72,54 +74,60 @@ class LagGram:
         self.Pu = max(o.nk + o.nb for o in points)
         self.L = max(o.first_row for o in points)
         self.const = self.m * self.Pu
-        width = self.const + 1 + self.k * (self.Py + 1)
-        G = np.zeros((width, width))
+        nu, ny = self.const + 1, self.Py + 1
+        self.G_u = np.zeros((nu, nu))
+        self.G_yu = np.zeros((self.k, ny, nu))
+        self.G_y = np.zeros((self.k, ny, ny))
         for U, Y in self.segments:
             if len(Y) <= self.L:
                 continue
-            Z = self._block(U, Y, self.L, len(Y))
-            G += Z.T @ Z
-        self.G = G
+            Zu = self._inputs(U, self.L, len(Y))
+            self.G_u += Zu.T @ Zu
+            for t in range(self.k):
+                Zy = self._outputs(np.ascontiguousarray(Y[:, t]), self.L, len(Y))
+                self.G_yu[t] += Zy.T @ Zu
+                self.G_y[t] += Zy.T @ Zy
 
-    def _block(self, U: np.ndarray, Y: np.ndarray, start: int, stop: int) -> np.ndarray:
-        """Z's rows start..stop-1 (lags reaching before the segment's first row hold 0)."""
+    def _inputs(self, U: np.ndarray, start: int, stop: int) -> np.ndarray:
+        """[u_j lags 0..Pu-1 per input, 1] at rows start..stop-1 (lags before the first row hold 0)."""
         pad = self.L
         Up = np.vstack([np.zeros((pad, self.m)), U])
-        Yp = np.vstack([np.zeros((pad, self.k)), Y])
         cols = [sliding_window_view(Up[pad + start - self.Pu + 1:pad + stop, j], self.Pu)[:, ::-1]
                 for j in range(self.m)]
         cols.append(np.ones((stop - start, 1)))
-        cols += [sliding_window_view(Yp[pad + start - self.Py:pad + stop - 1, i], self.Py)[:, ::-1]
-                 for i in range(self.k)]
-        cols.append(Y[start:stop])
         return np.hstack(cols)
 
-    def index(self, o: Orders, target: int = 0) -> np.ndarray:
-        """Columns of G holding the point's regressors for ``target``, in the order of :func:`lag_columns`."""
-        base = self.const + 1 + target * self.Py
-        idx = list(range(base, base + o.na))
-        for j in range(self.m):
-            idx += range(j * self.Pu + o.nk, j * self.Pu + o.nk + o.nb)
-        idx.append(self.const)
-        return np.asarray(idx)
+    def _outputs(self, y: np.ndarray, start: int, stop: int) -> np.ndarray:
+        """[y lags 1..Py, y] at rows start..stop-1 (lags before the first row hold 0)."""
+        yp = np.r_[np.zeros(self.L), y]
+        lags = sliding_window_view(yp[self.L + start - self.Py:self.L + stop - 1], self.Py)[:, ::-1]
+        return np.hstack([lags, y[start:stop, None]])
+
+    def _columns(self, o: Orders) -> tuple[np.ndarray, np.ndarray]:
+        """The point's output-lag columns (of Z_k) and input columns with the constant (of Z_u)."""
+        u = [j * self.Pu + i for j in range(self.m) for i in range(o.nk, o.nk + o.nb)]
+        return np.arange(o.na), np.asarray(u + [self.const], dtype=np.int64)
 
     def rows(self, o: Orders) -> int:
         return sum(max(0, len(Y) - o.first_row) for _, Y in self.segments)
 
     def solve(self, o: Orders, target: int = 0) -> np.ndarray | None:
-        """The least-squares coefficients of ``o`` for ``target`` on its own rows, or None when the SVD solver
-        must take it (dependent columns, or a condition number above :data:`MAX_CONDITION`)."""
-        idx = self.index(o, target)
-        ycol = self.G.shape[0] - self.k + target
-        A = self.G[np.ix_(idx, idx)].copy()
-        b = self.G[idx, ycol].copy()
-        used = [(U, Y) for U, Y in self.segments if len(Y) > o.first_row]
-        for U, Y in used:
-            stop = min(self.L, len(Y))  # rows between this point's first lag and the grid's longest
+        """The least-squares coefficients of ``o`` for ``target`` on its own rows (order of :func:`lag_columns`),
+        or None when the SVD solver must take it (dependent columns, or a condition number above
+        :data:`MAX_CONDITION`)."""
+        iy, iu = self._columns(o)
+        ycol = self.Py
+        Gy, Gyu = self.G_y[target], self.G_yu[target]
+        A = np.block([[Gy[np.ix_(iy, iy)], Gyu[np.ix_(iy, iu)]], [Gyu[np.ix_(iy, iu)].T, self.G_u[np.ix_(iu, iu)]]])
+        b = np.r_[Gy[iy, ycol], Gyu[ycol, iu]]
+        used = [(U, np.ascontiguousarray(Y[:, target])) for U, Y in self.segments if len(Y) > o.first_row]
+        for U, y in used:
+            stop = min(self.L, len(y))  # rows between this point's first lag and the grid's longest
             if stop > o.first_row:
-                E = self._block(U, Y, o.first_row, stop)[:, np.r_[idx, ycol]]
-                A += E[:, :-1].T @ E[:, :-1]
-                b += E[:, :-1].T @ E[:, -1]
+                Zy, Zu = self._outputs(y, o.first_row, stop), self._inputs(U, o.first_row, stop)
+                E = np.hstack([Zy[:, iy], Zu[:, iu]])
+                A += E.T @ E
+                b += E.T @ Zy[:, ycol]
         d = np.sqrt(np.diag(A))
         if not np.all(d > 0):
             return None
@@ -132,9 +140,8 @@ class LagGram:
             return None
         theta = scipy.linalg.cho_solve((R, False), b / d, check_finite=False) / d
         # one step of refinement on the true residual: r = y - Phi theta, theta += (Phi^T Phi)^-1 Phi^T r
-        g = np.zeros(len(idx))
-        for U, Y in used:
-            y = Y[:, target]
+        g = np.zeros(len(b))
+        for U, y in used:
             g += _correlate(y, U, y - _apply(y, U, o, theta), o)
         return theta + scipy.linalg.cho_solve((R, False), g / d, check_finite=False) / d
 

@@ -28,7 +28,7 @@ MALFORMED = DATA / "malformed"
 GOOD = DATA / "good"
 
 ALLOWED = (
-    "name, dt, columns, files, records, time, time_unit, gap_tolerance, segment, record, rate_column, "
+    "name, dt, columns, files, header, names, records, time, time_unit, gap_tolerance, segment, record, rate_column, "
     "period_column, delimiter, provenance, licence, min_segment_rows, drop_short_segments, dt_tolerance, physical_model"
 )
 CASES: dict[str, tuple[type[EngineBenchError], str]] = {
