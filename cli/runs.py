@@ -107,7 +107,7 @@ def runs_tag(run_ref: str, pairs, store) -> None:
     from enginebench.results.store import RunStore
 
     tags = parse_tags(pairs, "runs tag")  # checked before the store is read
-    run = RunStore(store).get(run_ref)
+    run = RunStore(store).get_own(run_ref, "tagged")
     _edited(run, edit_tags(run, add=tags))
 
 
@@ -120,7 +120,7 @@ def runs_untag(run_ref: str, keys, store) -> None:
     from enginebench.results.catalog import edit_tags
     from enginebench.results.store import RunStore
 
-    run = RunStore(store).get(run_ref)
+    run = RunStore(store).get_own(run_ref, "untagged")
     _edited(run, edit_tags(run, remove=keys))
 
 
@@ -133,7 +133,7 @@ def runs_rm(run_refs, yes: bool, store) -> None:
     from enginebench.results.store import RunStore
 
     rs = RunStore(store)
-    targets = [rs.get(ref) for ref in run_refs]
+    targets = [rs.get_own(ref) for ref in run_refs]
     if not yes:
         click.confirm(f"delete {len(targets)} run(s): {', '.join(r.id for r in targets)}?", abort=True)
     for r in targets:

@@ -19,7 +19,9 @@ selection tables; their damage), ``results.run_folder`` (``Run``: one run folder
 damaged folder, plugin files, resuming) and this module. Their names are re-exported
 here (``from enginebench.results.store import Run, RunStore`` keeps working).
 
-Fault handled here: two processes creating runs at once: run folders are claimed with an
+Faults handled here: a destructive command given a path outside the store, ``.``, or an empty
+reference (an unset ``$RUN``): ``get_own`` refuses all three, so ``runs rm`` deletes only run
+folders directly inside the store. Two processes creating runs at once: run folders are claimed with an
 atomic ``mkdir`` (a taken name gets the next free ``-k`` suffix), so run ids are distinct
 and no run writes into another's folder; ``latest`` is the run created last
 (``created_ns`` in run.json, then the id), whatever the ids' spelling, among the runs
@@ -156,6 +158,22 @@ class RunStore:
         if not self.root.is_dir():
             return []
         return sorted((Run(p) for p in self.root.iterdir() if (p / "run.json").is_file()), key=_order)
+
+    def get_own(self, ref: str, doing: str = "deleted") -> Run:
+        """A run of this store, for commands that change or delete it: ``get``'s references, but an empty
+        reference is refused (an unset ``$RUN`` in a script must not match every id), and the run must be a
+        folder directly inside the store holding a run.json (a path to any other folder, ``.`` included,
+        is refused: only runs of the store are ``doing``)."""
+        if not str(ref).strip():
+            raise StoreError(f"an empty run reference (an unset variable in a script?); name a run by its id, a "
+                             f"unique id prefix or 'latest' (runs of {self.root} are {doing} only by name)")
+        run = self.get(ref)
+        root, path = self.root.resolve(), run.path
+        inside = not path.is_symlink() and path.resolve().parent == root and (path / "run.json").is_file()
+        if not inside:
+            raise StoreError(f"{ref}: {path.resolve()} is not a run folder of the store {root}; only runs of the store "
+                             f"are {doing} (give its id, or --store for another store)")
+        return run
 
     def get(self, ref: str) -> Run:
         """A run by id, unique id prefix, path, or 'latest': the run created last among those not damaged.
