@@ -42,8 +42,33 @@ class Job:
 
     @property
     def key(self) -> str:
-        safe = lambda s: "".join(ch if ch.isalnum() or ch in "-._" else "-" for ch in s)  # noqa: E731
-        return f"{safe(self.target)}__w{self.window:g}__{safe(self.split)}__{safe(self.method)}__r{self.repetition:03d}"
+        """The job's file name: injective (two jobs never share a file), and plain names stay as they are."""
+        return (f"{key_part(self.target)}__w{window_part(self.window)}__{key_part(self.split)}__"
+                f"{key_part(self.method)}__r{self.repetition:03d}")
+
+
+PLAIN = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-._")
+
+
+def key_part(name: str) -> str:
+    """``name`` in a job key: ASCII letters, digits, '-', '.', '_' as they are, every other character as
+    ``~XX`` per UTF-8 byte ('~' included), and every '_' too when the name holds '__' or starts or ends with
+    '_'. Decoding is unique and an encoded part never holds the '__' that separates parts, so different
+    (target, window, split, method, repetition) never give one key ("y a" -> y~20a, "y-a" -> y-a)."""
+    underscores = "__" in name or name.startswith("_") or name.endswith("_")
+    out = []
+    for ch in name:
+        if ch in PLAIN and not (ch == "_" and underscores):
+            out.append(ch)
+        else:
+            out.extend(f"~{b:02X}" for b in ch.encode("utf-8"))
+    return "".join(out) or "~"
+
+
+def window_part(window: float) -> str:
+    """A window in a job key: ``%g`` (as keys always were) unless that loses digits, then the exact repr."""
+    short = f"{window:g}"
+    return short if float(short) == window else repr(float(window))
 
 
 @dataclass(frozen=True)

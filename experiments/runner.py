@@ -184,6 +184,16 @@ def spill_problems(ctx: Context, directory: Path, min_bytes: int | None = None) 
             pool.raw = spilled[id(raw)]
 
 
+def check_job_keys(jobs: list[Job]) -> None:
+    """StoreError when two planned jobs would share a file (their keys are injective: never expected)."""
+    seen: dict[str, Job] = {}
+    for job in jobs:
+        if job.key in seen:
+            raise StoreError(f"jobs {seen[job.key]} and {job} would be stored as one file {job.key}.parquet; "
+                             "rename one of the targets, splits or methods")
+        seen[job.key] = job
+
+
 def plan(ctx: Context) -> list[Job]:
     """Every job of the run, in a stable order (repetition outermost so early results cover all methods).
 
@@ -306,6 +316,7 @@ def execute(
     the executors, the store's atomic writes and resume alike.
     """
     jobs = plan(ctx)
+    check_job_keys(jobs)
     if resume is None:
         todo = jobs
     else:
@@ -337,6 +348,12 @@ def execute(
             results.close()
         if spill_dir is not None:
             shutil.rmtree(spill_dir, ignore_errors=True)
+    stored = run.finished_jobs(verify=False)
+    lost = [j.key for j in jobs if j.key not in stored]
+    if lost:
+        run.update_info(status="interrupted", finished_jobs=len(jobs) - len(lost))
+        raise StoreError(f"run {run.id}: {len(lost)} of {len(jobs)} planned jobs are not stored (first: {lost[0]}); "
+                         f"'enginebench run --resume {run.id}' computes them")
     n_failed = sum(run.job_meta(j.key).get("status") != "ok" for j in jobs) if resume is not None else n_failed
     if ctx.finish is not None:
         ctx.finish(run)

@@ -308,6 +308,8 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
     twice = sorted({t for t in targets if targets.count(t) > 1})
     _expect(not twice, origin, f"'targets' lists {', '.join(map(repr, twice))} more than once")
     _expect(len(set(methods)) == len(methods), origin, "'methods' lists a method twice")
+    twice = sorted({float(w) for w in windows if [float(x) for x in windows].count(float(w)) > 1})
+    _expect(not twice, origin, f"'windows' lists {', '.join(f'{w:g}' for w in twice)} more than once")
     _expect(mode == "window" or all(w == 0 for w in windows), origin, f"windows > 0 need mode = 'window' (mode is {mode!r})")
     init_samples = v["init_samples"]
     _expect(mode == "simulation" or init_samples == 0, origin,
