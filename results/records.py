@@ -87,5 +87,24 @@ def to_rich(table: pd.DataFrame, metric: str, units: Mapping[str, str] | None = 
             ci = "" if not np.isfinite(row["low"]) else f" [{row['low']:.4g}, {row['high']:.4g}]"
             t.add_row(str(row["method"]), *[f"{row[r]:.4g}" for r in present], f"{row['mean']:.4g}{ci}",
                       str(row["worst"]))
+        t.caption = verdict(block, present)
+        t.caption_justify = "left"
         out.append(t)
     return out
+
+
+def verdict(block: pd.DataFrame, records: list[str], baseline: str = "naive-mean") -> str:
+    """One line: the method with the lowest mean over records, its margin over the next and over the baseline,
+    and on how many records it is the best."""
+    ranked = block.sort_values("mean", kind="stable")
+    best = ranked.iloc[0]
+    wins = sum(int(block.loc[block[r].idxmin(), "method"] == best["method"]) for r in records
+               if block[r].notna().any())
+    text = f"best: {best['method']} (mean {best['mean']:.4g}; best on {wins} of {len(records)} records)"
+    if len(ranked) > 1:
+        second = ranked.iloc[1]
+        text += f"; next {second['method']} {second['mean']:.4g} ({second['mean'] / best['mean'] - 1:+.0%})"
+    base = block[block["method"] == baseline]
+    if len(base) and best["method"] != baseline:
+        text += f"; {baseline} {float(base['mean'].iloc[0]):.4g}"
+    return text

@@ -43,3 +43,13 @@ def test_the_table_averages_repetitions_per_record_then_summarises_over_records(
     assert table["method"].tolist() == ["b", "a"]  # best mean first; the failed job is left out
     b = table[table["method"] == "b"].iloc[0]
     assert b["r1"] == 0.5
+
+
+def test_the_verdict_names_the_best_method_its_margin_and_its_wins():
+    from enginebench.results.records import verdict
+
+    metas = {"a": _meta("a", 0, [1.0, 2.0, 4.0]), "b": _meta("b", 0, [0.5, 2.5, 0.8]),
+             "n": _meta("naive-mean", 0, [3.0, 3.0, 3.0])}
+    table = record_table(record_frame(metas), "rmse")
+    line = verdict(table, ["r1", "r2", "r3"])
+    assert line == "best: b (mean 1.267; best on 2 of 3 records); next a 2.333 (+84%); naive-mean 3"
