@@ -7,6 +7,7 @@ parts are Datasets; ``validation`` is present only where the split defines one.
 from __future__ import annotations
 
 import difflib
+import fnmatch
 import re
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -147,9 +148,33 @@ def parse_record_entry(entry: str) -> tuple[str, int | None, int | None]:
     return m.group("name").strip(), to_int(m.group("start")), to_int(m.group("stop"))
 
 
+def _is_pattern(entry: str) -> bool:
+    return "*" in entry or "?" in entry
+
+
+def _expand(entries: Sequence[str], known: list[str], named: set[str], part: str) -> list[str]:
+    """Entries with glob patterns (``*``, ``?``) replaced by the records they match, in dataset order, leaving
+    out the records another entry names explicitly (``train = ["*"]`` with ``test = ["m17"]``: all but m17)."""
+    out: list[str] = []
+    for entry in entries:
+        if not _is_pattern(entry):
+            out.append(entry)
+            continue
+        if "[" in entry or "]" in entry:
+            raise SpecError(f"split records: {entry!r} ({part}) mixes a pattern and a slice; a pattern (* ?) names "
+                            "whole records")
+        found = [r for r in known if fnmatch.fnmatchcase(r, entry.strip()) and r not in named and r not in out]
+        if not found:
+            raise SpecError(f"split records: pattern {entry!r} ({part}) matches no record that is not named "
+                            f"elsewhere; records: {', '.join(known[:12])}{' ...' if len(known) > 12 else ''}")
+        out += found
+    return out
+
+
 def records(ds: Dataset, train: Sequence[str], test: Sequence[str], validation: Sequence[str] | None = None
             ) -> list[Split]:
-    """Split by records (segments): each part lists record names, or index slices of them (``"rec[40650:]"``).
+    """Split by records (segments): each part lists record names, index slices of them (``"rec[40650:]"``) or
+    glob patterns of names (``"raw_0*"``; the records another entry names explicitly are left out).
 
     A record is a segment of the dataset (a file, a column set of a wide file, a value of
     its record column). A sliced entry becomes a segment named as written; slices follow
@@ -159,10 +184,11 @@ def records(ds: Dataset, train: Sequence[str], test: Sequence[str], validation: 
     bounds = {sid: (a, b) for sid, a, b in ds.segment_bounds()}
     used: dict[str, list[tuple[int, int, str, str]]] = {}
     frames: dict[str, list[pd.DataFrame]] = {}
+    named = {parse_record_entry(e)[0] for e in (*train, *(validation or []), *test) if not _is_pattern(e)}
     for part, entries in (("train", train), ("validation", validation or []), ("test", test)):
         if part != "validation" and not entries:
             raise SpecError(f"split records: the {part} list is empty; name at least one record")
-        for entry in entries:
+        for entry in _expand(entries, list(bounds), named, part):
             name, start, stop = parse_record_entry(entry)
             if name not in bounds:
                 known = list(bounds)

@@ -365,3 +365,13 @@ def test_a_method_worse_than_the_training_mean_is_named_under_the_table():
         "worse than the training mean: sindy (rmse 1.5 vs 1; y, Delta 0 s, test): its settings do not suit these data",
         "worse than the training mean: krls (mae 2.5 vs 2; y, Delta 0 s, test): its settings do not suit these data",
     ]
+
+
+def test_record_patterns_expand_to_the_records_not_named_elsewhere():
+    ds = records_dataset((100, 120))
+    (split,) = make_splits(ds, kind="records", train=["*"], test=["val"])
+    assert split.train.segment_ids == ["est"] and split.test.segment_ids == ["val"]
+    (split,) = make_splits(ds, kind="records", train=["e?t"], test=["v*"])
+    assert split.train.segment_ids == ["est"] and split.test.segment_ids == ["val"]
+    with pytest.raises(SpecError, match=r"pattern 'x\*' \(test\) matches no record that is not named elsewhere"):
+        make_splits(ds, kind="records", train=["est"], test=["x*"])
