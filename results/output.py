@@ -8,7 +8,10 @@ and never a traceback:
   typo in a folder name should not silently make a new tree) and the path must not be a
   folder;
 * ``write_output`` writes a temporary file beside the target and renames it, so an
-  interrupted or failed write (disk full, permissions) leaves the old file or none;
+  interrupted or failed write (disk full, permissions) leaves the old file or none; a path
+  that is not a regular file (``/dev/null``, ``/dev/stdout``, a named pipe, a symbolic link) is
+  written directly instead, never replaced by a file (a pipe without a reader, or a socket,
+  is refused with one line rather than waited on);
 * ``output_folder`` creates a folder for many outputs (a report, figures), parents
   included, or says why it cannot.
 """
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -43,15 +47,53 @@ def check_output_file(path: str | os.PathLike, option: str = "--output") -> Path
     if not folder.is_dir():
         what = "is not a folder" if folder.exists() else "does not exist"
         raise DataError(f"cannot write {path}: folder {folder} {what}; create it or choose another path ({option})")
-    if not os.access(folder, os.W_OK | os.X_OK):
+    if not os.access(folder, os.W_OK | os.X_OK) and not _special(path):
         raise DataError(f"cannot write {path}: folder {folder} is not writable; choose another path ({option})")
     return path
 
 
+def _special(path: Path) -> bool:
+    """True for an existing path that is not a plain regular file (a device, a pipe, a socket, a symbolic link)."""
+    try:
+        return not stat.S_ISREG(os.lstat(path).st_mode)
+    except FileNotFoundError:
+        return False
+
+
+def _write_direct(path: Path, raw: bytes, option: str) -> Path:
+    """Write into a special file as it is: a device or a link's target is opened and written, a pipe only when
+    a reader is there (non-blocking open), a socket refused."""
+    mode = os.stat(path).st_mode if path.exists() else 0
+    if stat.S_ISSOCK(mode):
+        raise DataError(f"cannot write {path}: it is a socket; give a file name ({option})")
+    flags = os.O_WRONLY | (os.O_NONBLOCK if stat.S_ISFIFO(mode) else 0) | (os.O_TRUNC if stat.S_ISREG(mode) else 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        if exc.errno == errno.ENXIO:
+            raise DataError(f"cannot write {path}: a named pipe with no reader; start the reader first or give a "
+                            f"file name ({option})") from None
+        raise DataError(f"cannot write {path} ({os_reason(exc)}); choose another path ({option})") from None
+    try:
+        if stat.S_ISFIFO(mode):
+            os.set_blocking(fd, True)
+        view = memoryview(raw)
+        while view:
+            view = view[os.write(fd, view):]
+    except OSError as exc:
+        raise DataError(f"cannot write {path} ({os_reason(exc)}); choose another path ({option})") from None
+    finally:
+        os.close(fd)
+    return path
+
+
 def write_output(path: str | os.PathLike, data: str | bytes, option: str = "--output") -> Path:
-    """Write ``data`` (text as UTF-8) to ``path`` whole (temporary file, then rename); DataError on failure."""
+    """Write ``data`` (text as UTF-8) to ``path`` whole (temporary file, then rename; a special file is written
+    directly); DataError on failure."""
     path = check_output_file(path, option)
     raw = data.encode("utf-8") if isinstance(data, str) else data
+    if _special(path):
+        return _write_direct(path, raw, option)
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
