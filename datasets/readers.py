@@ -140,7 +140,7 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
         if rest_blank:
             raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
         raise DataError(f"{file}, line 1: blank; the header must be on line 1")
-    fields = [h.strip() for h in next(csv.reader([first.rstrip("\r\n")], delimiter=delim))]
+    fields = [h.strip() for h in _fields(first, delim)]
     if not spec.header:
         return _read_headerless(file, spec, required, text_cols, fields, delim)
     header = fields
@@ -148,7 +148,7 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
     pos = _check_header(file, header, required, delim)
     first_texts = None
     if second.strip():
-        first_texts = [f.strip() for f in next(csv.reader([second.rstrip("\r\n")], delimiter=delim))]
+        first_texts = [f.strip() for f in _fields(second, delim)]
     text_pos = sorted({pos[c] for c in text_cols})
     raw = _parse_csv(file, delim, len(header), text_pos)
     # A float column that overflowed holds inf where the file holds text such as 1e309: re-read it
@@ -163,6 +163,16 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
     if overflow:
         raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)))
     return FileTable(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
+
+
+def _fields(line: str, delim: str) -> list[str]:
+    """One CSV line's fields (a field of any length: the csv module's 128 KiB limit lifted for this line)."""
+    limit = csv.field_size_limit()
+    csv.field_size_limit(max(limit, len(line) + 1))
+    try:
+        return next(csv.reader([line.rstrip("\r\n")], delimiter=delim))
+    finally:
+        csv.field_size_limit(limit)
 
 
 def _no_header_hint(file: Path, header: list[str], required: dict[str, str]) -> None:

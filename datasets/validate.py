@@ -47,9 +47,15 @@ def _num(x: float) -> str:
     return f"{float(x):.10g}"
 
 
+SHOWN_CHARS = 80
+"""A cell longer than this is shown by its start, its length and its end (an error line stays a line)."""
+
+
 def show_cell(v: Any) -> str:
-    """A cell as the user wrote it: text verbatim, numbers without float noise."""
+    """A cell as the user wrote it: text verbatim (a long one cut in the middle), numbers without float noise."""
     if isinstance(v, str):
+        if len(v) > SHOWN_CHARS:
+            return f"{v[:40]}...({len(v)} characters)...{v[-20:]}"
         return v
     if isinstance(v, (pd.Timestamp, np.datetime64)):
         return pd.Timestamp(v).isoformat()

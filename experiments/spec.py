@@ -36,6 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import tomllib
+import math
 from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -71,6 +72,8 @@ def _windows(value: Any) -> list[float]:
     windows = [value] if is_number(value) else value
     if not (isinstance(windows, list) and windows and all(is_number(w) and w >= 0 for w in windows)):
         raise Invalid("'{name}' must be a list of non-negative numbers of seconds")
+    if not all(math.isfinite(w) for w in windows):
+        raise Invalid("'{name}' must be finite numbers of seconds, got {value}")
     return windows
 
 

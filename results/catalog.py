@@ -220,7 +220,10 @@ def parse_since(text: str, now: datetime | None = None) -> datetime:
     raw = text.strip()
     age = _AGE.match(raw)
     if age:
-        return now - timedelta(seconds=float(age[1]) * _AGE_SECONDS[age[2]])
+        try:
+            return now - timedelta(seconds=float(age[1]) * _AGE_SECONDS[age[2]])
+        except (OverflowError, ValueError):  # an age before year 1: every run is younger
+            return datetime.min.replace(tzinfo=timezone.utc)
     try:
         when = datetime.fromisoformat(raw)
     except ValueError:

@@ -1,0 +1,44 @@
+"""Inputs that used to end in a traceback now give one `error:` line (or work): a CSV field over 128 KiB,
+an infinite window, a --since age beyond the calendar."""
+
+from __future__ import annotations
+
+from click.testing import CliRunner
+
+from enginebench.cli.main import cli
+from enginebench.results.store import RunStore
+from helpers import stored_run
+
+
+def test_a_field_over_128_kib_is_read_and_reported_in_one_short_line(tmp_path):
+    (tmp_path / "big.csv").write_text("u,y\n1," + "7" * 140_000 + "x\n2,3\n4,5\n")
+    (tmp_path / "big.toml").write_text('name = "b"\ndt = 1.0\nfiles = ["big.csv"]\n[columns]\n'
+                                       'u = { role = "input" }\ny = { role = "output" }\n')
+    out = CliRunner().invoke(cli, ["datasets", "show", str(tmp_path / "big.toml")])
+    assert out.exit_code == 2, out.output
+    line = out.output.strip()
+    assert line.startswith("error: ") and "\n" not in line and len(line) < 400
+    assert "(140001 characters)" in line and "is not a number" in line
+
+
+def test_a_header_field_over_128_kib_is_read(tmp_path):
+    name = "u" + "x" * 140_000
+    (tmp_path / "h.csv").write_text(f"{name},y\n1,2\n2,3\n")
+    (tmp_path / "h.toml").write_text('name = "h"\ndt = 1.0\nfiles = ["h.csv"]\n[columns]\n'
+                                     'y = { role = "output" }\n')
+    out = CliRunner().invoke(cli, ["datasets", "show", str(tmp_path / "h.toml")])
+    assert out.exit_code == 0, out.output
+
+
+def test_an_infinite_window_is_refused(tmp_path):
+    exp = tmp_path / "e.toml"
+    exp.write_text('dataset = "d.parquet"\ntargets = ["y"]\nmode = "window"\nwindows = [inf]\nmethods = ["naive-mean"]\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q"])
+    assert out.exit_code == 2 and "'windows' must be finite numbers of seconds, got [inf]" in out.output
+
+
+def test_a_since_age_beyond_the_calendar_lists_every_run(tmp_path):
+    store = RunStore(tmp_path / "runs")
+    run = stored_run(store, "one", {"naive-mean": [1.0]})
+    out = CliRunner().invoke(cli, ["runs", "list", "--since", "99999999999999999999d", "--store", str(store.root)])
+    assert out.exit_code == 0 and run.id[:20] in out.output
