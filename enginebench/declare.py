@@ -172,8 +172,8 @@ class Field:
             try:
                 low, high, num = value
                 ok = (all(is_number(v) for v in (low, high, num)) and math.isfinite(low) and math.isfinite(high)
-                      and float(num) == int(num) and int(num) >= 1)
-            except (TypeError, ValueError):
+                      and math.isfinite(num) and float(num) == int(num) and int(num) >= 1)
+            except (TypeError, ValueError, OverflowError):
                 ok = False
             if not ok:
                 raise self._refuse("{name}={value} " + LOG_GRID_MUST)

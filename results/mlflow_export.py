@@ -90,8 +90,12 @@ def import_mlflow():
 
 
 def resolve_uri(uri: str | Path) -> str:
-    """A plain folder becomes a ``file:`` URI; other URIs pass through unchanged."""
+    """A plain folder becomes a ``file:`` URI; other URIs pass through unchanged; an empty one is refused
+    (an unset variable must not make an MLflow store in the current folder)."""
     uri = str(uri)
+    if not uri.strip():
+        raise ExportError("--mlflow '': an empty tracking URI (an unset variable?); give a server "
+                          "(http://HOST:PORT), a local folder or a file: URI")
     if re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", uri) and not re.match(r"^[A-Za-z]:[\\/]", uri):
         return uri
     return Path(uri).expanduser().resolve().as_uri()

@@ -42,3 +42,28 @@ def test_a_since_age_beyond_the_calendar_lists_every_run(tmp_path):
     run = stored_run(store, "one", {"naive-mean": [1.0]})
     out = CliRunner().invoke(cli, ["runs", "list", "--since", "99999999999999999999d", "--store", str(store.root)])
     assert out.exit_code == 0 and run.id[:20] in out.output
+
+
+def test_an_infinite_grid_count_is_one_line():
+    import pytest
+
+    from enginebench.errors import MethodError
+    from enginebench.methods.krls import KRLS
+
+    with pytest.raises(MethodError, match=r"option gamma_grid=\[-4, 4, inf\] must be \(low exponent, high exponent, "
+                                          r"count\)"):
+        KRLS(gamma_grid=[-4, 4, float("inf")])
+
+
+def test_an_empty_mlflow_uri_is_refused_and_creates_nothing(tmp_path, monkeypatch):
+    import pytest
+
+    pytest.importorskip("mlflow")
+    store = RunStore(tmp_path / "runs")
+    stored_run(store, "one", {"naive-mean": [1.0]})
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    out = CliRunner().invoke(cli, ["export", "latest", "--mlflow", "", "--store", str(store.root)])
+    assert out.exit_code == 2 and "an empty tracking URI (an unset variable?)" in out.output
+    assert list(work.iterdir()) == []
