@@ -74,6 +74,25 @@ def _wall_time(before: dict[str, Any], changes: dict[str, Any], now_ns: int) -> 
     return {"wall_s": round(float(before.get("wall_s") or 0.0) + (now_ns - start) / 1e9, 3)}
 
 
+RUN_FIELDS: dict[str, tuple[type, ...]] = {"tags": (dict, type(None)), "resumes": (list, type(None)),
+                                           "plugins": (list, type(None)), "status": (str,)}
+"""run.json fields every command reads, with the shapes they must have (a garbled one makes the run damaged)."""
+
+
+def _bad_field(info: dict[str, Any]) -> str | None:
+    """Why a run.json field has a shape no command can read (a garbled edit), or None."""
+    for key, kinds in RUN_FIELDS.items():
+        value = info.get(key)
+        if key in info and (not isinstance(value, kinds) or isinstance(value, bool) and bool not in kinds):
+            return f"field {key!r} is {type(value).__name__} {json.dumps(value)[:40]}, not a {kinds[0].__name__}"
+    tags = info.get("tags") or {}
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in tags.items()):
+        return "field 'tags' holds a value that is not text"
+    if not all(isinstance(r, dict) for r in info.get("resumes") or []):
+        return "field 'resumes' holds an entry that is not a table"
+    return None
+
+
 @dataclass(frozen=True)
 class ResumeState:
     """What ``Run.prepare_resume`` found: the jobs to keep and the damaged job files to compute again."""
@@ -135,7 +154,9 @@ class Run:
             data = tomllib.loads(text) if name.endswith(".toml") else json.loads(text)
         except ValueError as exc:
             return f"is not valid {'TOML' if name.endswith('.toml') else 'JSON'} ({damage_text(exc)})"
-        return data if isinstance(data, dict) else "does not hold a table of keys"
+        if not isinstance(data, dict):
+            return "does not hold a table of keys"
+        return _bad_field(data) if name == "run.json" and _bad_field(data) else data
 
     def _read_object(self, name: str) -> dict[str, Any]:
         data = self._load_object(name)

@@ -67,3 +67,20 @@ def test_an_empty_mlflow_uri_is_refused_and_creates_nothing(tmp_path, monkeypatc
     out = CliRunner().invoke(cli, ["export", "latest", "--mlflow", "", "--store", str(store.root)])
     assert out.exit_code == 2 and "an empty tracking URI (an unset variable?)" in out.output
     assert list(work.iterdir()) == []
+
+
+def test_a_garbled_run_json_field_makes_the_run_damaged_not_a_traceback(tmp_path):
+    import json
+
+    store = RunStore(tmp_path / "runs")
+    run = stored_run(store, "one", {"naive-mean": [1.0]})
+    for field, value in (("tags", "garbled"), ("resumes", 7), ("tags", {"a": 1})):
+        info = json.loads((run.path / "run.json").read_text())
+        (run.path / "run.json").write_text(json.dumps({**info, field: value}))
+        for args in (["runs", "show", run.id], ["table", run.id], ["runs", "tag", run.id, "a=b"]):
+            out = CliRunner().invoke(cli, [*args, "--store", str(store.root)])
+            assert out.exit_code == 2 and out.output.startswith(f"error: run {run.id}") and \
+                f"run.json field {field!r}" in out.output and len(out.output.strip().splitlines()) == 1, out.output
+        listed = CliRunner().invoke(cli, ["runs", "list", "--store", str(store.root)])
+        assert listed.exit_code == 0 and "damaged" in listed.output
+        (run.path / "run.json").write_text(json.dumps(info))
