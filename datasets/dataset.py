@@ -80,7 +80,21 @@ class Dataset:
         return self.rows(self.frame[SEGMENT].isin(wanted).to_numpy())
 
     def with_roles(self, changes: dict[str, str]) -> "Dataset":
-        return replace(self, schema=self.schema.with_roles(changes))
+        """A copy with some columns given new roles; a text column (a group id) cannot become a signal."""
+        schema = self.schema.with_roles(changes)
+        frame = self.frame
+        for name, role in changes.items():
+            if role == "group" or name not in frame or pd.api.types.is_numeric_dtype(frame[name].dtype):
+                continue
+            values = pd.to_numeric(frame[name], errors="coerce")
+            bad = values.isna() & frame[name].notna()
+            if bad.any():
+                i = int(np.flatnonzero(bad.to_numpy())[0])
+                raise DataError(f"dataset {self.name!r}, column {name!r}: holds text ({str(frame[name].iloc[i])!r} at "
+                                f"row {i}), so it cannot have role {role!r} (roles = {{ {name} = \"{role}\" }}); "
+                                "only numeric columns can be inputs, outputs or internals")
+            frame = frame.assign(**{name: values.astype(float)})
+        return replace(self, schema=schema, frame=frame)
 
     # -- identity -------------------------------------------------------------------
     def content_hash(self) -> str:

@@ -84,3 +84,17 @@ def test_a_garbled_run_json_field_makes_the_run_damaged_not_a_traceback(tmp_path
         listed = CliRunner().invoke(cli, ["runs", "list", "--store", str(store.root)])
         assert listed.exit_code == 0 and "damaged" in listed.output
         (run.path / "run.json").write_text(json.dumps(info))
+
+
+def test_a_text_group_column_made_an_input_is_one_line(tmp_path):
+    (tmp_path / "d.csv").write_text("t,u,g,y\n0,1,a,2\n1,2,a,3\n2,3,b,1\n3,1,b,2\n4,5,a,3\n5,1,b,1\n")
+    (tmp_path / "d.toml").write_text('name = "grp"\ndt = 1.0\nfiles = ["d.csv"]\ntime = "t"\n[columns]\n'
+                                     'u = { role = "input" }\ng = { role = "group" }\ny = { role = "output" }\n')
+    exp = tmp_path / "e.toml"
+    exp.write_text('dataset = "d.toml"\ntargets = ["y"]\nrepetitions = 1\ntrain_size = 0\nroles = { g = "input" }\n'
+                   '[split]\nkind = "holdout"\n[selection]\nkind = "none"\n[methods.naive-mean]\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q", "--store", str(tmp_path / "runs")])
+    assert out.exit_code == 2
+    assert out.output.strip() == ("error: dataset 'grp', column 'g': holds text ('a' at row 0), so it cannot have "
+                                  "role 'input' (roles = { g = \"input\" }); only numeric columns can be inputs, "
+                                  "outputs or internals")
