@@ -129,6 +129,9 @@ def prepare(spec: ExperimentSpec) -> Context:
                      for part, raw in raws[split].items()}
             problems[(JOINT, window, split)] = Problem(train=pools.pop("train"), parts=pools)
     check_protocol(spec, problems)
+    for raw in {id(r["train"]): r["train"] for r in raws.values()}.values():
+        for method in methods.values():
+            method.check_columns(list(raw.inputs), list(raw.internals), list(spec.targets))
     return Context(spec=spec, dataset=name, problems=problems, methods=methods, dataset_hash=dataset_hash)
 
 

@@ -111,6 +111,10 @@ class Method:
         listed has no declaring option, e.g. a fixed search space)."""
         return cls.option_declaration().edges()
 
+    def check_columns(self, inputs: Sequence[str], internals: Sequence[str], targets: Sequence[str]) -> None:
+        """Optional hook, called before the first job: MethodError when an option names a column the experiment's
+        data do not have in that role (so the mistake is one line up front, not a failed job per repetition)."""
+
     def search_space(self, data: Samples) -> SearchSpace:
         """Candidate hyperparameters; an empty space means nothing to select."""
         return {}

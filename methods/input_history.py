@@ -66,6 +66,16 @@ class InputHistory:
         self._memory_cache = (key, est)
         return est
 
+    def check_columns(self, inputs: Sequence[str], internals: Sequence[str], targets: Sequence[str]) -> None:
+        """Option ``inputs`` names run-time inputs of the data (checked before the first job)."""
+        missing = [c for c in (self.options["inputs"] or []) if c not in inputs]
+        if missing:
+            raise MethodError(
+                f"method {self.name!r}: option inputs names {', '.join(map(repr, missing))}: not "
+                f"{'a run-time input' if len(missing) == 1 else 'run-time inputs'} of the data; its inputs are "
+                f"{', '.join(inputs)}"
+            )
+
     def history_space(self, data: Samples) -> SearchSpace:
         """Horizons (s) and strides as given, else the horizons derived from the memory of ``data``."""
         o = self.options

@@ -98,3 +98,26 @@ def test_a_text_group_column_made_an_input_is_one_line(tmp_path):
     assert out.output.strip() == ("error: dataset 'grp', column 'g': holds text ('a' at row 0), so it cannot have "
                                   "role 'input' (roles = { g = \"input\" }); only numeric columns can be inputs, "
                                   "outputs or internals")
+
+
+def test_an_option_naming_a_missing_input_is_refused_before_the_first_job(tmp_path):
+    import numpy as np
+    import pandas as pd
+
+    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+    from enginebench.datasets.io import write_dataset
+    from enginebench.datasets.schema import Column, Schema
+
+    rng = np.random.default_rng(0)
+    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(60.0), "u": rng.normal(size=60),
+                                     "y": rng.normal(size=60)}) for k in range(2)], ignore_index=True)
+    path = write_dataset(Dataset("d", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
+                         tmp_path / "d.parquet")
+    exp = tmp_path / "e.toml"
+    exp.write_text(f'dataset = "{path}"\ntargets = ["y"]\nmode = "simulation"\nrepetitions = 1\ntrain_size = 0\n'
+                   '[split]\nkind = "records"\ntrain = ["s0"]\ntest = ["s1"]\n[selection]\nkind = "none"\n'
+                   '[methods.boost-fir]\ninputs = ["nope"]\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q", "--store", str(tmp_path / "runs")])
+    assert out.exit_code == 2 and out.output.strip() == (
+        "error: method 'boost-fir': option inputs names 'nope': not a run-time input of the data; its inputs are u")
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
