@@ -8,7 +8,9 @@ through the functions here.
 
 Faults handled here:
 
-* a damaged job file (truncated, garbled: job files carry Parquet page checksums):
+* a damaged job file (truncated, garbled: job files carry Parquet page checksums, and the
+  SHA-256 of everything they are read back as, metadata and column names included,
+  checked on every read: ``content_sha256``):
   ``load_job`` raises one of ``READ_ERRORS``, so reading the run's metrics refuses with a
   message naming the file, and ``Run.finished_jobs`` does not count it: ``run --resume``
   recomputes that job and keeps every other job as it is (``Run.damaged_jobs`` names
@@ -26,6 +28,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -34,6 +37,10 @@ from enginebench.results.atomic import damage_text, read_parquet, table_bytes
 
 JOB_META_KEY = b"enginebench.job"
 """The key of a job file's Parquet metadata holding the job's metadata (JSON)."""
+JOB_SHA_KEY = b"enginebench.sha256"
+"""The key holding the SHA-256 of everything a job file is read back as (``content_sha256``)."""
+CHECKSUMMED = "checksum"
+"""Set in the metadata of every job file that carries ``JOB_SHA_KEY`` (older files carry neither)."""
 SELECTION_DIR = "selection"
 """The folder of a run holding one selection table per job that selected hyperparameters."""
 SELECTION_META = "selection_table"
@@ -61,9 +68,44 @@ def encode_job(rows: pd.DataFrame, meta: dict[str, Any]) -> tuple[bytes, bytes |
         data = table_bytes(pa.Table.from_pandas(selection, preserve_index=False))
         meta["selection_file"] = {"sha256": hashlib.sha256(data).hexdigest(), "rows": len(selection)}
     table = pa.Table.from_pandas(rows, preserve_index=False)
-    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
-                                           JOB_META_KEY: json.dumps(jsonable(meta)).encode()})
+    meta_raw = json.dumps(jsonable({**meta, CHECKSUMMED: 1})).encode()
+    metadata = {**(table.schema.metadata or {}), JOB_META_KEY: meta_raw}
+    table = table.replace_schema_metadata(metadata)
+    digest = content_sha256(table)
+    table = table.replace_schema_metadata({**metadata, JOB_SHA_KEY: digest.encode()})
     return table_bytes(table), data
+
+
+def content_sha256(table: pa.Table) -> str:
+    """SHA-256 of what a job file is read back as: its metadata (the job's JSON, pandas' description of the
+    frame) and each column's name, type and values, independent of how the file chunks them. A byte of the
+    file that changes any of these changes the digest; one that changes none of them is harmless."""
+    h = hashlib.sha256(b"enginebench job v1\0")
+    metadata = table.schema.metadata or {}
+    for key in (JOB_META_KEY, b"pandas"):
+        value = metadata.get(key, b"")
+        h.update(len(value).to_bytes(8, "little") + value)
+    for name, column in zip(table.column_names, table.columns):
+        h.update(f"\0{name}\0{column.type}\0".encode())
+        values = column.to_numpy(zero_copy_only=False) if column.num_chunks else []
+        if pa.types.is_floating(column.type) or pa.types.is_integer(column.type) or pa.types.is_boolean(column.type):
+            h.update(np.ascontiguousarray(values).tobytes())
+        else:
+            h.update("\x1f".join("\x1e" if v is None else str(v) for v in values).encode("utf-8", "surrogatepass"))
+        h.update(column.null_count.to_bytes(8, "little"))
+    return h.hexdigest()
+
+
+def check_content(table: pa.Table, meta: dict[str, Any]) -> None:
+    """ValueError when a job file written with a checksum does not match it (or lost it)."""
+    recorded = (table.schema.metadata or {}).get(JOB_SHA_KEY)
+    if recorded is None:
+        if meta.get(CHECKSUMMED):
+            raise ValueError("the file's checksum is missing")
+        return  # written before job files carried one
+    metadata = {k: v for k, v in (table.schema.metadata or {}).items() if k != JOB_SHA_KEY}
+    if content_sha256(table.replace_schema_metadata(metadata)).encode() != recorded:
+        raise ValueError("the file does not match its SHA-256 checksum (a changed byte)")
 
 
 def load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, dict[str, Any]]:
@@ -75,6 +117,7 @@ def load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, di
     meta = json.loads(raw)
     if not isinstance(meta, dict):
         raise ValueError("the job metadata is not a JSON object")
+    check_content(table, meta)
     if not frame:
         table.schema.names  # noqa: B018 - decodes the column names, which a garble can break
         json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
