@@ -375,7 +375,8 @@ def _segment_mae(t: np.ndarray, p: np.ndarray, lengths: np.ndarray) -> np.ndarra
     a = np.abs(d)
     s = _pow2(a)
     with np.errstate(over="ignore"):
-        return np.add.reduceat(a / s, _starts(lengths)) / lengths * (s * f)
+        # (m s) f, not m (s f): a segment of exact zeros stays 0 when s f alone would overflow (0 x inf = nan)
+        return (np.add.reduceat(a / s, _starts(lengths)) / lengths * s) * f
 
 
 def _segment_nrmse(t: np.ndarray, p: np.ndarray, lengths: np.ndarray) -> np.ndarray:

@@ -75,8 +75,9 @@ def _wall_time(before: dict[str, Any], changes: dict[str, Any], now_ns: int) -> 
 
 
 RUN_FIELDS: dict[str, tuple[type, ...]] = {"tags": (dict, type(None)), "resumes": (list, type(None)),
-                                           "plugins": (list, type(None)), "status": (str,)}
-"""run.json fields every command reads, with the shapes they must have (a garbled one makes the run damaged)."""
+                                           "status": (str,)}
+"""run.json fields every command reads, with the shapes they must have (a garbled one makes the run damaged;
+``plugins`` has its own check, ``Run.plugins``)."""
 
 
 def _bad_field(info: dict[str, Any]) -> str | None:
