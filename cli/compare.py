@@ -18,8 +18,9 @@ def _metric_list(text: str | None) -> list[str] | None:
 @click.command()
 @click.argument("run_a", metavar="RUN_A")
 @click.argument("others", metavar="RUN_B [RUN_C ...]", nargs=-1)
-@click.option("--metrics", default="mae,mape,ppmcc,rmae", show_default=True,
-              help="Comma-separated metrics to compare, or 'all'.")
+@click.option("--metrics", default=None,
+              help="Comma-separated metrics to compare, or 'all' [default: the table's for RUN_A's mode, "
+                   "mae,mape,ppmcc,rmae or rmse,nrmse,fit,rmae in simulation mode; those the runs have].")
 @click.option("--format", "fmt", type=click.Choice(["term", "csv"]), default="term", show_default=True,
               help="term: statements and a table; csv: one row per compared metric with every column "
                    "(with several runs, led by the ids run_a and run_b).")
@@ -40,12 +41,19 @@ def compare(run_a: str, others: tuple[str, ...], metrics: str, fmt: str, interva
     from enginebench.results.compare import comparison_table, compare_many, many_csv, many_text, statements
     from enginebench.results.store import RunStore
 
+    from enginebench.results.tables import DEFAULT_METRICS, SIMULATION_METRICS
+
     check_output(output)
     rs = RunStore(store)
-    wanted = _metric_list(metrics)
     runs = [rs.get(ref) for ref in (run_a, *(others or ("latest",)))]
+    if metrics is None:  # the table's metrics for the mode; a metric no run has (undefined here) is left out
+        default = SIMULATION_METRICS if runs[0].config().get("mode") == "simulation" else DEFAULT_METRICS
+        have = {m for r in runs for m in r.metrics()["metric"]}
+        wanted = [m for m in default if m in have] or list(default)
+    else:
+        wanted = _metric_list(metrics)
     cmps = compare_many(runs, interval=interval, metric_names=wanted)
-    if wanted:
+    if wanted and metrics is not None:
         check_metrics(wanted, [m for c in cmps if "metric" in c.table for m in c.table["metric"]], "--metrics", "")
     if len(cmps) > 1:
         text = many_csv(cmps) if fmt == "csv" else many_text(cmps)

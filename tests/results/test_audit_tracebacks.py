@@ -121,3 +121,31 @@ def test_an_option_naming_a_missing_input_is_refused_before_the_first_job(tmp_pa
     assert out.exit_code == 2 and out.output.strip() == (
         "error: method 'boost-fir': option inputs names 'nope': not a run-time input of the data; its inputs are u")
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_compare_of_two_simulation_runs_uses_the_simulation_metrics(tmp_path):
+    import numpy as np
+    import pandas as pd
+
+    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+    from enginebench.datasets.io import write_dataset
+    from enginebench.datasets.schema import Column, Schema
+    from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.spec import from_dict
+
+    rng = np.random.default_rng(0)
+    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(80.0), "u": rng.normal(size=80),
+                                     "y": rng.normal(size=80)}) for k in range(3)], ignore_index=True)
+    path = write_dataset(Dataset("d", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
+                         tmp_path / "d.parquet")
+    store = RunStore(tmp_path / "runs")
+    ids = []
+    for seed in (0, 1):
+        spec = from_dict({"name": "s", "dataset": str(path), "targets": ["y"], "mode": "simulation", "seed": seed,
+                          "repetitions": 2, "train_size": 0, "init_samples": 2,
+                          "split": {"kind": "records", "train": ["s0", "s1"], "test": ["s2"]},
+                          "selection": {"kind": "none"}, "methods": ["naive-mean"]}, origin="test")
+        ids.append(run_experiment(spec, store, workers=1).run.id)
+    out = CliRunner().invoke(cli, ["compare", *ids, "--store", str(store.root)])
+    assert out.exit_code == 0, out.output
+    assert " rmse " in out.output and " nrmse " in out.output and "mape" not in out.output
