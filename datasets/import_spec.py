@@ -280,6 +280,16 @@ def _record(path: Path, name: str, table: Any, schema: Schema, time: str | None,
     if "time" in table:
         rec_time = _text(path, table, "time")
     full = {c: mapping.get(c, c) for c in declared}
+    by_file: dict[str, list[str]] = {}
+    for logical, column in full.items():
+        by_file.setdefault(column, []).append(logical)
+    for column, logicals in by_file.items():
+        roles = {schema[c].role for c in logicals}
+        if len(logicals) > 1 and "output" in roles:
+            raise SpecError(
+                f"{path}: {where}: file column {column!r} is read as {', '.join(map(repr, logicals))}; a target read "
+                "from the same column as another signal leaks it into the inputs: map each to its own column"
+            )
     if rec_time is not None and rec_time in schema:
         raise SpecError(
             f"{path}: {where}: time = {rec_time!r} is a column declared in [columns]; name the file's time column"

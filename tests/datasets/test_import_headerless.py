@@ -139,3 +139,13 @@ def test_the_gengine2_import_needs_both_sides_of_the_split(tmp_path):
     with pytest.raises(DataError, match=r"needs measurements of both sides of the publisher's split .* found "
                                         r"raw_000001_measurement_000000.csv"):
         import_gengine2(tmp_path)
+
+
+def test_a_records_table_may_not_read_the_target_from_an_input_column(tmp_path):
+    path = tmp_path / "spec.toml"
+    (tmp_path / "w.csv").write_text("a,b,c\n1,2,3\n4,5,6\n")
+    path.write_text('name = "b"\ndt = 1.0\n' + COLUMNS + '[records.r]\nfile = "w.csv"\n'
+                    'columns = { speed = "a", load = "b", nox = "a" }\n')
+    with pytest.raises(SpecError, match=r"\[records.r\]: file column 'a' is read as 'speed', 'nox'; a target read from "
+                                        r"the same column as another signal leaks it"):
+        import_table(path)
