@@ -43,9 +43,12 @@ def _any_text(value: Any) -> str:
 
 DELIMITER = '{name} must be one character such as "," ";" or "\\t", got {value}'
 SECONDS = "{name} must be a positive number of seconds, got {value}"
+MAX_DT = 1e7
+"""The longest sample period accepted (about 116 days): beyond it time stamps lose their meaning."""
+SECONDS_DT = "{name} must be a positive number of seconds up to 1e7 (about 116 days), got {value}"
 KEYS = Declaration(
     text("name", None, "the dataset's name"),
-    positive("dt", None, "sample period", unit="s", message=SECONDS),
+    positive("dt", None, "sample period", unit="s", high=MAX_DT, message=SECONDS_DT),
     table("columns", None, 'column = { role = "input" | "output" | "internal" | "group", unit = "..." }'),
     anything("files", None, "data files (CSV, TSV or Parquet), relative to the spec's folder; a name with * ? [ ] "
              "is a glob (its matches in sorted order)", type_label="list[str]"),
@@ -175,6 +178,8 @@ def _schema(path: Path, table: Any) -> Schema:
     for name, entry in table.items():
         if isinstance(entry, str):
             entry = {"role": entry}
+        if not str(name).strip():
+            raise SpecError(f"{path}: [columns] has a column with an empty name; name it as the file's header does")
         if not isinstance(entry, dict):
             raise SpecError(f'{path}: [columns] {name!r} must be a table such as {{ role = "input", unit = "rpm" }}')
         for k in entry:

@@ -20,6 +20,7 @@ baseline that states no measured tolerance gives a warning (a failure with ``str
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -81,6 +82,8 @@ def parse_tolerance(text: str | float | None) -> Tolerance:
     if not m:
         raise DataError(f"--tolerance {raw!r} is not a number: give an absolute value (0.05) or a percentage of the published mean (5%)")
     value = float(m.group(1))
+    if not math.isfinite(value):
+        raise DataError(f"--tolerance {raw!r} is beyond the double range: give a finite tolerance (e.g. 5%)")
     return Tolerance(value / 100.0, True) if m.group(2) else Tolerance(value, False)
 
 

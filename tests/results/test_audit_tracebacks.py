@@ -149,3 +149,21 @@ def test_compare_of_two_simulation_runs_uses_the_simulation_metrics(tmp_path):
     out = CliRunner().invoke(cli, ["compare", *ids, "--store", str(store.root)])
     assert out.exit_code == 0, out.output
     assert " rmse " in out.output and " nrmse " in out.output and "mape" not in out.output
+
+
+def test_an_empty_column_name_a_huge_dt_and_an_infinite_tolerance_are_refused(tmp_path):
+    import pytest
+
+    from enginebench.datasets.importer import import_table
+    from enginebench.errors import DataError, SpecError
+    from enginebench.results.guard import parse_tolerance
+
+    (tmp_path / "a.csv").write_text("u,y\n1,2\n2,3\n3,1\n")
+    for body, message in (('dt = 1e308\n[columns]\nu = { role = "input" }\n', "dt must be a positive number of "
+                           "seconds up to 1e7"),
+                          ('dt = 1\n[columns]\n"" = { role = "input" }\n', "has a column with an empty name")):
+        (tmp_path / "s.toml").write_text('name = "x"\nfiles = ["a.csv"]\n' + body + 'y = { role = "output" }\n')
+        with pytest.raises(SpecError, match=message):
+            import_table(tmp_path / "s.toml")
+    with pytest.raises(DataError, match="beyond the double range"):
+        parse_tolerance("1e999%")
