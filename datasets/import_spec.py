@@ -45,7 +45,7 @@ DELIMITER = '{name} must be one character such as "," ";" or "\\t", got {value}'
 SECONDS = "{name} must be a positive number of seconds, got {value}"
 MAX_DT = 1e7
 """The longest sample period accepted (about 116 days): beyond it time stamps lose their meaning."""
-SECONDS_DT = "{name} must be a positive number of seconds up to 1e7 (about 116 days), got {value}"
+SECONDS_DT = "{name} must be a positive number of seconds, got {value} (at most 1e7 s, about 116 days)"
 KEYS = Declaration(
     text("name", None, "the dataset's name"),
     positive("dt", None, "sample period", unit="s", high=MAX_DT, message=SECONDS_DT),

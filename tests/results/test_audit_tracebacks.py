@@ -160,7 +160,7 @@ def test_an_empty_column_name_a_huge_dt_and_an_infinite_tolerance_are_refused(tm
 
     (tmp_path / "a.csv").write_text("u,y\n1,2\n2,3\n3,1\n")
     for body, message in (('dt = 1e308\n[columns]\nu = { role = "input" }\n', "dt must be a positive number of "
-                           "seconds up to 1e7"),
+                           r"seconds, got 1e\+308 \(at most 1e7 s"),
                           ('dt = 1\n[columns]\n"" = { role = "input" }\n', "has a column with an empty name")):
         (tmp_path / "s.toml").write_text('name = "x"\nfiles = ["a.csv"]\n' + body + 'y = { role = "output" }\n')
         with pytest.raises(SpecError, match=message):
