@@ -31,7 +31,9 @@ KINDS = ("bool", "int", "float", "str", "choice", "log_grid", "list", "table", "
 EDGES = ("both", "low", "high", "none")
 """Grid edges at which a selected value is worth a warning (an integer degree's lower edge 1 is not)."""
 
-LOG_GRID_MUST = ("must be (low exponent, high exponent, count) with a count >= 1, e.g. (-4, 4, 41) for "
+MAX_GRID_COUNT = 10_000
+"""The most values one log grid may hold (a grid of 10^7 points is a typo, not a search)."""
+LOG_GRID_MUST = ("must be (low exponent, high exponent, count) with 1 <= count <= 10000, e.g. (-4, 4, 41) for "
                  "10^-4 ... 10^4")
 
 
@@ -120,7 +122,7 @@ class Field:
         elif self.kind == "choice":
             text = _alternatives(self.choices)
         elif self.kind == "log_grid":
-            text = "(low exponent, high exponent, count) with a count >= 1"
+            text = "(low exponent, high exponent, count) with 1 <= count <= 10000"
         elif self.kind == "list":
             item = {"int": "whole numbers", "float": "numbers", "str": "names"}.get(self.items or "", "")
             text = f"a {'non-empty ' if self.min_items else ''}list{f' of {item}' if item else ''}{f' {b}' if b and item else ''}"
@@ -172,7 +174,7 @@ class Field:
             try:
                 low, high, num = value
                 ok = (all(is_number(v) for v in (low, high, num)) and math.isfinite(low) and math.isfinite(high)
-                      and math.isfinite(num) and float(num) == int(num) and int(num) >= 1)
+                      and math.isfinite(num) and float(num) == int(num) and 1 <= int(num) <= MAX_GRID_COUNT)
             except (TypeError, ValueError, OverflowError):
                 ok = False
             if not ok:

@@ -9,6 +9,7 @@ it arrives.
 from __future__ import annotations
 
 import itertools
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -187,6 +188,41 @@ def spill_problems(ctx: Context, directory: Path, min_bytes: int | None = None) 
             pool.raw = spilled[id(raw)]
 
 
+MAX_JOBS = 100_000
+"""Jobs one run may plan unless ``ENGINEBENCH_MAX_JOBS`` raises it (the marine paper's full protocol plans 960)."""
+MAX_FITS = 10_000
+"""Model fits one job's selection may make per grid point (resamples or folds, times trials) unless
+``ENGINEBENCH_MAX_FITS`` raises it."""
+
+
+def _limit(name: str, default: int) -> int:
+    raw = os.environ.get(name)
+    try:
+        return int(raw) if raw else default
+    except ValueError:
+        raise SpecError(f"{name}={raw!r} must be a whole number") from None
+
+
+def check_work(spec: ExperimentSpec) -> None:
+    """SpecError, before any data is read or job planned, when the experiment asks for more work than any run
+    should do (10^12 repetitions, 10^7 resamples, 10^9 trials): the estimate and the limit that raises it."""
+    targets = 1 if spec.all_targets else len(spec.targets)
+    jobs = spec.repetitions * targets * len(spec.windows) * len(spec.methods)
+    limit = _limit("ENGINEBENCH_MAX_JOBS", MAX_JOBS)
+    if jobs > limit:
+        raise SpecError(f"experiment {spec.name!r} plans at least {jobs:,} jobs ({spec.repetitions:,} repetitions x "
+                        f"{targets} target(s) x {len(spec.windows)} window(s) x {len(spec.methods)} method(s)), more "
+                        f"than the limit of {limit:,}; lower repetitions, or set ENGINEBENCH_MAX_JOBS to raise it")
+    sel = spec.selection
+    per_point = {"bootstrap": sel.resamples, "kfold": sel.folds}.get(sel.kind, 1)
+    fits = per_point * (sel.trials if sel.search != "grid" else 1)
+    limit = _limit("ENGINEBENCH_MAX_FITS", MAX_FITS)
+    if fits > limit:
+        raise SpecError(f"experiment {spec.name!r}: [selection] asks for {fits:,} fits per job and grid point "
+                        f"({sel.kind}{f', {sel.trials:,} trials' if sel.search != 'grid' else ''}), more than the limit "
+                        f"of {limit:,}; lower resamples, folds or trials, or set ENGINEBENCH_MAX_FITS to raise it")
+
+
 def check_job_keys(jobs: list[Job]) -> None:
     """StoreError when two planned jobs would share a file (their keys are injective: never expected)."""
     seen: dict[str, Job] = {}
@@ -277,6 +313,7 @@ def run_experiment(
     workers = check_workers(workers)
     check_executor(executor, scheduler)
     if resume is None:
+        check_work(spec)
         ctx = prepare(spec)
         spec = ctx.spec  # targets = "all" resolved
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),

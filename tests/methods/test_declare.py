@@ -56,7 +56,9 @@ def test_defaults_are_filled_and_given_values_kept():
     ({"envelope": float("inf")}, "method 'm': option envelope must be a positive number, got inf"),
     ({"solver": "magic"}, "method 'm': option solver='magic'; use one of 'auto', 'exact', 'falkon'"),
     ({"gamma_grid": (-1, True, 3)}, "method 'm': option gamma_grid=(-1, True, 3) must be (low exponent, high "
-                                    "exponent, count) with a count >= 1, e.g. (-4, 4, 41) for 10^-4 ... 10^4"),
+                                    "exponent, count) with 1 <= count <= 10000, e.g. (-4, 4, 41) for 10^-4 ... 10^4"),
+    ({"gamma_grid": (-1, 1, 10**7)}, "method 'm': option gamma_grid=(-1, 1, 10000000) must be (low exponent, high "
+                                     "exponent, count) with 1 <= count <= 10000"),
     ({"gamma_grid": (0, 1, 0)}, "method 'm': option gamma_grid=(0, 1, 0) must be (low exponent"),
     ({"degrees": [1, 6]}, "method 'm': option degrees must be a non-empty list of whole numbers in [1, 5], got [1, 6]"),
     ({"degrees": []}, "method 'm': option degrees must be a non-empty list"),

@@ -167,3 +167,18 @@ def test_an_empty_column_name_a_huge_dt_and_an_infinite_tolerance_are_refused(tm
             import_table(tmp_path / "s.toml")
     with pytest.raises(DataError, match="beyond the double range"):
         parse_tolerance("1e999%")
+
+
+def test_work_beyond_any_run_is_refused_before_the_data_are_read(tmp_path, monkeypatch):
+    exp = tmp_path / "e.toml"
+    exp.write_text('dataset = "nowhere.parquet"\ntargets = ["y"]\nmethods = ["naive-mean"]\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "--repeats", str(10**12), "-q", "--store", str(tmp_path / "r")])
+    assert out.exit_code == 2 and "plans at least 1,000,000,000,000 jobs" in out.output
+    assert "set ENGINEBENCH_MAX_JOBS to raise it" in out.output
+    exp.write_text('dataset = "nowhere.parquet"\ntargets = ["y"]\nmethods = ["naive-mean"]\n'
+                   '[selection]\nkind = "bootstrap"\nresamples = 10000000\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q", "--store", str(tmp_path / "r")])
+    assert out.exit_code == 2 and "asks for 10,000,000 fits per job and grid point" in out.output
+    monkeypatch.setenv("ENGINEBENCH_MAX_FITS", str(10**8))
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q", "--store", str(tmp_path / "r")])
+    assert out.exit_code == 2 and "nowhere.parquet" in out.output  # past the limit: on to the data
