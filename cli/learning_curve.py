@@ -63,7 +63,7 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
     with JobProgress(f"{spec.name} learning curve: preparing",
                      lambda job: f"{spec.name}: {job.split} {job.method} r{job.repetition}", quiet) as bar:
         result = run_learning_curve(spec, amounts, RunStore(store), rows=rows, workers=workers,
-                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar.tick,
+                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar,
                                     executor=executor or ("dask" if scheduler else "local"), scheduler=scheduler)
     summary = (result.run.read_table(SUMMARY_FILE) if metric == "mae"
                else summarize_curve(result.run.metrics(), metric=metric))

@@ -76,9 +76,10 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
         name = spec.name
     known = {r.id for r in store_obj.runs()}
     try:
-        with JobProgress(f"{name}: preparing", lambda job: f"{name}: {job.method} r{job.repetition}", quiet) as bar:
+        with JobProgress(f"{name}: preparing", lambda job: f"{name}: last done {job.method} r{job.repetition}", quiet,
+                         running=f"{name}: running") as bar:
             result = run_experiment(spec, store_obj, workers=workers,
-                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar.tick,
+                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar,
                                     resume=resume, executor=executor or ("dask" if scheduler else "local"),
                                     scheduler=scheduler, tags=tag_map)
             bar.describe(f"{name}: done")

@@ -366,6 +366,8 @@ def execute(
                         resumes=[*info.get("resumes", []), environment.resume_record(workers)])
     n_failed = 0
     done = len(jobs) - len(todo)
+    if hasattr(progress, "planned"):  # a progress display told the total before the first job finishes
+        progress.planned(done, len(jobs))
     spill_dir = None
     if len(todo) > 1 and (workers > 1 if executor == "local" else scheduler is None):
         spill_dir = tempfile.mkdtemp(prefix="enginebench-raw-")
