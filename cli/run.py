@@ -96,12 +96,15 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     out = Console()
     from enginebench.results.units import run_units
 
-    out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})",
-                      units=run_units(result.run.info()), width=out.width))
-    from enginebench.results.tables import default_paired_metric
+    if result.n_failed < result.n_jobs:
+        out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})",
+                          units=run_units(result.run.info()), width=out.width))
+        from enginebench.results.tables import default_paired_metric
 
-    paired_metric = default_paired_metric(cfg.get("mode", ""))
-    click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric, out.width), nl=False)
+        paired_metric = default_paired_metric(cfg.get("mode", ""))
+        click.echo(paired_lines(paired_tests(raw, paired_metric), paired_metric, out.width), nl=False)
+    else:
+        click.echo(f"no table: every one of the {result.n_jobs} jobs failed; the reasons:")
     for key, why in result.damaged.items():
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
     from enginebench.results.notes import run_note_lines

@@ -46,6 +46,14 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         return _by_record(run, split_list(metrics), fmt, output, width)
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
+    if len(raw) and not (raw["status"] == "ok").any():  # nothing to tabulate: say why instead
+        from enginebench.results.notes import run_note_lines
+
+        for line in run_note_lines(run, width=200):
+            click.echo(line)
+        from enginebench.errors import DataError
+
+        raise DataError(f"no job of run {run.id} succeeded, so there is no table; the reasons are above")
     summary = tables.summarize(raw, interval=interval)
     if paired_metric is None:
         paired_metric = tables.default_paired_metric(str(run.config().get("mode", "")))

@@ -182,3 +182,31 @@ def test_work_beyond_any_run_is_refused_before_the_data_are_read(tmp_path, monke
     monkeypatch.setenv("ENGINEBENCH_MAX_FITS", str(10**8))
     out = CliRunner().invoke(cli, ["run", str(exp), "-q", "--store", str(tmp_path / "r")])
     assert out.exit_code == 2 and "nowhere.parquet" in out.output  # past the limit: on to the data
+
+
+def test_a_run_whose_every_job_failed_prints_each_reason(tmp_path):
+    import numpy as np
+    import pandas as pd
+
+    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+    from enginebench.datasets.io import write_dataset
+    from enginebench.datasets.schema import Column, Schema
+
+    rng = np.random.default_rng(0)
+    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(50.0), "u": rng.normal(size=50),
+                                     "y": rng.normal(size=50)}) for k in range(2)], ignore_index=True)
+    frame.loc[5, "y"] = np.nan
+    path = write_dataset(Dataset("nan", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
+                         tmp_path / "nan.parquet")
+    exp = tmp_path / "e.toml"
+    exp.write_text(f'dataset = "{path}"\ntargets = ["y"]\nmode = "simulation"\nrepetitions = 1\ntrain_size = 0\n'
+                   '[split]\nkind = "records"\ntrain = ["s0"]\ntest = ["s1"]\n[selection]\nkind = "none"\n'
+                   '[methods.naive-mean]\n[methods.arx]\n')
+    store = str(tmp_path / "runs")
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q", "-j", "1", "--store", store])
+    assert out.exit_code == 1 and "none of the metrics" not in out.output
+    assert "no table: every one of the 2 jobs failed" in out.output
+    assert "training segment 's0' has nan/inf in target 'y' at row 5" in out.output
+    table = CliRunner().invoke(cli, ["table", "latest", "--store", store])
+    assert table.exit_code == 2 and "has nan/inf in target 'y'" in table.output
+    assert "no job of run" in table.output and "none of the metrics" not in table.output
