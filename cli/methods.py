@@ -19,10 +19,12 @@ def methods_list(plugins) -> None:
     from enginebench.methods.registry import available, broken
 
     load_plugins(plugins)
-    for name, cls in available().items():
-        click.echo(f"{name:<14} {cls.family:<12} {','.join(sorted(cls.modes)):<24} {cls.summary}")
-    for name, why in broken().items():
-        click.echo(f"{name:<14} {'BROKEN':<12} {'-':<24} {why}")
+    found, bad = available(), broken()
+    width = max([14, *(len(n) for n in (*found, *bad))])  # every name aligned, however long
+    for name, cls in found.items():
+        click.echo(f"{name:<{width}} {cls.family:<12} {','.join(sorted(cls.modes)):<24} {cls.summary}")
+    for name, why in bad.items():
+        click.echo(f"{name:<{width}} {'BROKEN':<12} {'-':<24} {why}")
 
 
 @methods.command("show")
