@@ -30,12 +30,3 @@ def test_the_total_is_known_once_planned_and_the_label_names_the_last_finished_j
         bar(4, 12, "arx r0")
         assert task.completed == 4 and task.description == "x: last done arx r0"
 
-
-def test_methods_list_aligns_every_name():
-    from click.testing import CliRunner
-
-    from enginebench.cli.main import cli
-
-    lines = CliRunner().invoke(cli, ["methods", "list"]).output.splitlines()
-    starts = {line.index(line.split()[1], len(line.split()[0])) for line in lines}
-    assert len(starts) == 1 and any(line.startswith("residual-krls-pm ") for line in lines)
