@@ -325,7 +325,8 @@ class N4SID(PeerMethod):
         sid.subspace_identification()
         return sid
 
-    def _fit_orders(self, train: Samples, orders: Sequence[int]) -> list[StateSpaceFit]:
+    def _fit_orders(self, train: Samples, orders: Sequence[int]) -> list[StateSpaceFit | MethodError]:
+        """A fit per order; an order the data cannot carry is its MethodError (a grid skips it, ``fit`` raises it)."""
         self.check_mode(train.mode)
         traj = training_trajectories(self.name, train)
         scaling = _Scaling.of(traj)
@@ -340,11 +341,13 @@ class N4SID(PeerMethod):
         for order in orders:
             br = self._block_rows(order, k)
             if order > br * k:
-                raise MethodError(f"method {self.name!r}: order {order} exceeds block_rows x outputs = {br * k}; "
-                                  "raise block_rows")
+                fits.append(MethodError(f"method {self.name!r}: order {order} exceeds block_rows x outputs = {br * k}; "
+                                        "raise block_rows"))
+                continue
             if len(U) < 4 * br * (U.shape[1] + k):
-                raise MethodError(f"method {self.name!r}: {len(U)} training samples are too few for {br} Hankel block "
-                                  "rows; use lower orders")
+                fits.append(MethodError(f"method {self.name!r}: {len(U)} training samples are too few for {br} Hankel "
+                                        "block rows; use lower orders"))
+                continue
             try:
                 if br not in cache:
                     cache[br] = self._identify(U, Y, br)
@@ -352,15 +355,19 @@ class N4SID(PeerMethod):
                     warnings.simplefilter("ignore")
                     ss, _ = cache[br].system_identification(rank=order)
             except (ValueError, np.linalg.LinAlgError) as exc:
-                raise MethodError(f"method {self.name!r}: nfoursid could not identify order {order}: "
-                                  f"{str(exc).splitlines()[0]}") from exc
+                fits.append(MethodError(f"method {self.name!r}: nfoursid could not identify order {order}: "
+                                        f"{str(exc).splitlines()[0]}"))
+                continue
             mats = (np.array(mat, dtype=np.float64, order="C") for mat in (ss.a, ss.b, ss.c, ss.d))  # pickle-stable
             fits.append(StateSpaceFit(*mats, order, br, scaling, env, tuple(train.input_names), tuple(train.target_names)))
         return fits
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> StateSpaceFit:
         """Subspace identification on the concatenated standardised training segments. ``rng`` is not drawn from."""
-        return self._fit_orders(train, [_whole_number(self.name, params, "order", 1)])[0]
+        (fitted,) = self._fit_orders(train, [_whole_number(self.name, params, "order", 1)])
+        if isinstance(fitted, MethodError):
+            raise fitted
+        return fitted
 
     def predict(self, fitted: StateSpaceFit, data: Samples) -> SegmentPredictions:
         """Free run from the state fitted to each init window."""
@@ -377,11 +384,14 @@ class N4SID(PeerMethod):
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> np.ndarray:
-        """One subspace decomposition serves every order."""
+        """One subspace decomposition serves every order; an order the data cannot carry scores +inf (NaN), the
+        others go on."""
         out = np.empty((len(grid), len(data), len(train.target_names)))
         fits = self._fit_orders(train, [_whole_number(self.name, p, "order", 1) for p in grid])
         for i, fitted in enumerate(fits):
-            if data.segments:
+            if isinstance(fitted, MethodError):
+                out[i] = np.nan
+            elif data.segments:
                 out[i] = np.concatenate(self.predict(fitted, data))
         return out
 

@@ -79,6 +79,17 @@ def test_n4sid_grid_shares_the_decomposition_and_equals_fit_predict(data):
 
 
 @needs_nfoursid
+def test_an_order_the_data_cannot_carry_is_skipped_by_the_grid_and_refused_by_fit(data):
+    train, test = data
+    m = N4SID()
+    grid = [{"order": 2}, {"order": 200}]
+    out = m.predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert np.isfinite(out[0]).all() and np.isnan(out[1]).all()
+    with pytest.raises(MethodError, match="method 'n4sid': .*order|Hankel"):
+        m.fit(train, {"order": 200}, np.random.default_rng(0))
+
+
+@needs_nfoursid
 def test_n4sid_conformance():
     check_method(N4SID, {"orders": (1, 2)})
 
