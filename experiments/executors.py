@@ -14,6 +14,7 @@ import pickle
 import socket
 import sys
 import threading
+import time
 import uuid
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -26,8 +27,27 @@ from enginebench.experiments.jobs import Context, Job, run_job
 _CTX: Context | None = None
 
 
-def _init_worker(blob: bytes, plugins: tuple[str, ...], threads: int) -> None:
+PARENT_POLL_S = 1.0
+"""How often a pool worker checks that the run's process is still alive."""
+
+
+def _exit_with_parent(parent: int) -> None:
+    """A daemon thread of each pool worker: exit as soon as the run's process is gone (a kill -9 of the run
+    leaves no worker computing for nobody and holding memory)."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="enginebench-parent-watch", daemon=True).start()
+
+
+def _init_worker(blob: bytes, plugins: tuple[str, ...], threads: int, parent: int | None = None) -> None:
     global _CTX
+    if parent is not None:
+        _exit_with_parent(parent)
     _limit_threads(threads)
     if plugins:
         from enginebench.methods.registry import load_plugin_file
@@ -64,7 +84,7 @@ def run_local(
     blob = pickle.dumps(ctx, protocol=pickle.HIGHEST_PROTOCOL)
     threads = max(1, default_workers() // workers)
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                               initializer=_init_worker, initargs=(blob, plugins, threads))
+                               initializer=_init_worker, initargs=(blob, plugins, threads, os.getpid()))
     pending = {pool.submit(_work, job) for job in jobs}
     try:
         while pending:

@@ -519,3 +519,49 @@ def test_a_run_resumed_by_the_same_code_has_no_provenance_note(toy_parquet, tmp_
     out = CliRunner().invoke(cli, ["runs", "show", run.id, "--store", str(store.root)])
     assert out.output.splitlines()[0].startswith(f"run {run.id}: finished (6/6 jobs, 0 failed)")
     assert "resumed with other code" not in out.output
+
+
+def _children(pid: int) -> set[int]:
+    """Processes whose parent is ``pid`` (from /proc)."""
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the pool's workers")
+def test_kill_9_of_a_pool_run_leaves_no_worker_running(tmp_path, toy_parquet):
+    """The run's process killed outright (no handler runs): its pool workers notice their parent is gone and
+    exit within seconds instead of computing queued jobs for nobody."""
+    plugin, log, store = tmp_path / "slow.py", tmp_path / "fits.log", tmp_path / "runs"
+    plugin.write_text(SLOW_PLUGIN)
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'name = "slow"\ndataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 16\n'
+                   f'train_size = 50\n[selection]\nkind = "none"\n[methods.slow-mean]\n')
+    env = {**os.environ, "SLOW_MEAN_LOG": str(log), "ENGINEBENCH_STORE": str(store), "SLOW_MEAN_SECONDS": "2"}
+    cmd = [sys.executable, "-P", "-c", "from enginebench.cli.main import main; main()", "run", str(exp),
+           "--plugin", str(plugin), "-j", "2", "-q"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(3000):  # until a worker has started a fit
+            if (log.exists() and log.read_text()) or proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        workers = _children(proc.pid)
+        assert proc.poll() is None and workers
+        proc.kill()
+        proc.wait(timeout=60)
+        for _ in range(200):  # the watch polls every second; a fit in progress ends within 2 s
+            alive = {w for w in workers if Path(f"/proc/{w}").exists()
+                     and "Z" not in Path(f"/proc/{w}/stat").read_text().rsplit(")", 1)[1].split()[0]}
+            if not alive:
+                break
+            time.sleep(0.1)
+        assert not alive, f"{len(alive)} worker(s) still running 20 s after kill -9 of the run"
+    finally:
+        proc.kill()
