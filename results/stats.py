@@ -18,7 +18,7 @@ import math
 import warnings
 
 import numpy as np
-import scipy.stats
+import scipy.special
 
 from enginebench.errors import DataError
 
@@ -103,7 +103,9 @@ def t_interval(values: object, level: float = 0.95) -> tuple[float, float, float
     if r == 1 or identical(x):
         return mean, float("nan"), float("nan")
     with np.errstate(over="ignore"):
-        half = float(scipy.stats.t.ppf(0.5 * (1.0 + level), r - 1)) * sd / np.sqrt(r)
+        # the Student-t quantile (equal to scipy.stats.t.ppf); scipy.stats itself is imported only by the tests
+        # between methods, so printing a stored table does not pay its half-second import
+        half = float(scipy.special.stdtrit(r - 1, 0.5 * (1.0 + level))) * sd / np.sqrt(r)
     return (mean, *_bounds(mean, half))
 
 
@@ -190,6 +192,8 @@ def paired_ttest(a: object, b: object) -> tuple[float, float]:
     if np.all(d == d[0]):
         return (float("nan"), 1.0) if d[0] == 0.0 else (float("nan"), float("nan"))
     s = max(_pow2(x), _pow2(y))  # the t statistic is scale-free: test the scaled values
+    import scipy.stats
+
     res = scipy.stats.ttest_rel(x / s, y / s)
     return float(res.statistic), float(res.pvalue)
 
@@ -228,6 +232,8 @@ def wilcoxon(a: object, b: object) -> tuple[float, float]:
         # scipy warns when it falls back from the exact distribution (ties/zeros);
         # the fallback is the documented behaviour, not something the user can act on.
         warnings.simplefilter("ignore", category=UserWarning)
+        import scipy.stats
+
         res = scipy.stats.wilcoxon(x, y)
     return float(res.statistic), float(res.pvalue)
 
