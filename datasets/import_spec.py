@@ -29,7 +29,13 @@ from enginebench.errors import DataError, SpecError
 REQUIRED_KEYS = ("name", "dt", "columns")
 
 
+WHITESPACE = "whitespace"
+"""``delimiter = "whitespace"``: fields separated by any run of spaces or tabs (loggers' .dat and .txt files)."""
+
+
 def _delimiter(value: Any) -> Any:
+    if value == WHITESPACE:
+        return value
     if not isinstance(value, str) or len(value) != 1 or value in "\"\r\n":
         raise Invalid(DELIMITER)
     return value
@@ -41,7 +47,7 @@ def _any_text(value: Any) -> str:
     return value
 
 
-DELIMITER = '{name} must be one character such as "," ";" or "\\t", got {value}'
+DELIMITER = '{name} must be one character such as "," ";" or "\\t", or "whitespace", got {value}'
 SECONDS = "{name} must be a positive number of seconds, got {value}"
 MAX_DT = 1e7
 """The longest sample period accepted (about 116 days): beyond it time stamps lose their meaning."""
@@ -66,7 +72,8 @@ KEYS = Declaration(
     text("record", None, "column whose change of value starts a new record"),
     text("rate_column", None, "a sample-rate column checked against dt, never imported", unit="Hz"),
     text("period_column", None, "a sample-period column checked against dt, never imported", unit="s"),
-    anything("delimiter", None, "CSV delimiter, one character; default a tab for .tsv files, else a comma",
+    anything("delimiter", None, "CSV delimiter, one character or \"whitespace\" (runs of spaces or tabs); default a "
+             "tab for .tsv files, else a comma",
              check=_delimiter, type_label="str | None"),
     anything("provenance", "", "where the data come from", check=_any_text),
     anything("licence", "", "the data's licence", check=_any_text),

@@ -21,7 +21,7 @@ relative to the spec file. Every key::
                                        # (record and segment exclude each other)
     rate_column = "SampleRate"         # optional: a column holding the sampling rate (Hz), checked against dt
     period_column = "Period"           # optional: a column holding the sample period (s), checked against dt
-    delimiter = ","                    # optional (default ",", or tab for .tsv files)
+    delimiter = ","                    # optional (default ",", or tab for .tsv files); "whitespace": runs of spaces/tabs
     provenance = "test bench B, 2024"  # optional, free text
     licence = "CC BY 4.0"              # optional
     min_segment_rows = 2               # optional: shorter records are an error ...

@@ -23,7 +23,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from enginebench.datasets.import_spec import ImportSpec, RecordSpec, one_line
+from enginebench.datasets.import_spec import WHITESPACE, ImportSpec, RecordSpec, one_line
 from enginebench.datasets.validate import DATETIME, check_columns
 from enginebench.errors import DataError
 
@@ -167,6 +167,8 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
 
 def _fields(line: str, delim: str) -> list[str]:
     """One CSV line's fields (a field of any length: the csv module's 128 KiB limit lifted for this line)."""
+    if delim == WHITESPACE:
+        return line.split()
     limit = csv.field_size_limit()
     csv.field_size_limit(max(limit, len(line) + 1))
     try:
@@ -231,7 +233,7 @@ def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, he
     try:
         return pd.read_csv(
             file,
-            sep=delim,
+            sep=r"\s+" if delim == WHITESPACE else delim,
             header=0 if header_row else None,
             names=[f"c{i}" for i in range(n_fields)],
             index_col=False,

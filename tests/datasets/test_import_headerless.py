@@ -149,3 +149,14 @@ def test_a_records_table_may_not_read_the_target_from_an_input_column(tmp_path):
     with pytest.raises(SpecError, match=r"\[records.r\]: file column 'a' is read as 'speed', 'nox'; a target read from "
                                         r"the same column as another signal leaks it"):
         import_table(path)
+
+
+def test_whitespace_separated_files_with_or_without_a_header(tmp_path):
+    (tmp_path / "log.dat").write_text("  1.5   2   3\n 4\t5    6e1\n7 8 9\n")
+    spec = write(tmp_path, 'header = false\nfiles = ["log.dat"]\ndelimiter = "whitespace"', {})
+    ds = import_table(spec)
+    np.testing.assert_array_equal(column(ds, "nox", "log"), [3.0, 60.0, 9.0])
+    np.testing.assert_array_equal(column(ds, "speed", "log"), [1.5, 4.0, 7.0])
+    (tmp_path / "h.txt").write_text("speed   load  nox\n1 2 3\n4  5   6\n")
+    ds = import_table(write(tmp_path, 'files = ["h.txt"]\ndelimiter = "whitespace"', {}))
+    np.testing.assert_array_equal(column(ds, "load", "h"), [2.0, 5.0])
