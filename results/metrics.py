@@ -182,11 +182,20 @@ def mean_abs(values: object) -> float:
     return _mean(x) if x.size else float("nan")
 
 
+CONSTANT_ULPS = 16
+"""A target whose values all lie within this many units in the last place of its largest magnitude is constant:
+its spread is rounding, and a ratio to it (NRMSE 1.5e14) would be noise."""
+
+
 def _constant_reason(name: str, t: np.ndarray) -> str | None:
     """Why `name` (normalised by the output's spread) is undefined for targets `t`, or None."""
     if np.all(t == t[0]):
         return (f"{name} is undefined: target constant (all {t.size} values equal {float(t[0])!r}); "
                 "report MAE or RMSE instead")
+    lo, hi = float(np.min(t)), float(np.max(t))
+    if np.isfinite(lo) and np.isfinite(hi) and hi - lo <= CONSTANT_ULPS * np.spacing(max(abs(lo), abs(hi))):
+        return (f"{name} is undefined: target constant to rounding (its {t.size} values span {hi - lo:.3g}, within "
+                f"{CONSTANT_ULPS} units in the last place of {hi:.17g}); report MAE or RMSE instead")
     return None
 
 

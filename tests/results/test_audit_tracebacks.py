@@ -210,3 +210,17 @@ def test_a_run_whose_every_job_failed_prints_each_reason(tmp_path):
     table = CliRunner().invoke(cli, ["table", "latest", "--store", store])
     assert table.exit_code == 2 and "has nan/inf in target 'y'" in table.output
     assert "no job of run" in table.output and "none of the metrics" not in table.output
+
+
+def test_a_target_constant_to_rounding_has_no_nrmse():
+    import numpy as np
+
+    from enginebench.results.metrics import compute_metrics
+
+    up = np.nextafter(1.0, 2.0)
+    values, notes = compute_metrics([np.array([1.0, up, 1.0, up])], [np.ones(4)], 1.0)
+    assert np.isnan(values["nrmse"]) and np.isnan(values["fit"]) and np.isnan(values["r2"])
+    assert "target constant to rounding" in notes["nrmse"]
+    tiny = np.array([1e-10, 2e-10, 3e-10])  # a small signal is not constant: its spread is far above rounding
+    values, _ = compute_metrics([tiny], [tiny * 1.1], 1e-10)
+    assert np.isfinite(values["nrmse"])
