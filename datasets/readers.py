@@ -303,6 +303,8 @@ def read_file(file: Path, spec: ImportSpec, uses: list[FileUse]) -> FileTable:
         raise DataError(f"{file}: file not found ({named} of {spec.path}; paths are relative to the spec)")
     if file.is_dir():
         raise DataError(f"{file}: is a folder; {'list data files in files' if rec is None else 'name a data file'}")
+    if not file.is_file():  # a named pipe or a device would block the read, or never end
+        raise DataError(f"{file}: not a regular file (a named pipe or a device); give the data file itself")
     required: dict[str, str] = {}
     text: list[str] = []
     for use in uses:

@@ -224,3 +224,23 @@ def test_a_target_constant_to_rounding_has_no_nrmse():
     tiny = np.array([1e-10, 2e-10, 3e-10])  # a small signal is not constant: its spread is far above rounding
     values, _ = compute_metrics([tiny], [tiny * 1.1], 1e-10)
     assert np.isfinite(values["nrmse"])
+
+
+def test_a_named_pipe_as_a_data_file_is_refused_at_once(tmp_path):
+    import os
+
+    import pytest
+
+    from enginebench.datasets.importer import import_table
+    from enginebench.errors import DataError
+
+    os.mkfifo(tmp_path / "a.csv")
+    (tmp_path / "s.toml").write_text('name = "x"\ndt = 1.0\nfiles = ["a.csv"]\n[columns]\nu = { role = "input" }\n'
+                                     'y = { role = "output" }\n')
+    with pytest.raises(DataError, match="not a regular file"):
+        import_table(tmp_path / "s.toml")
+    os.mkfifo(tmp_path / "d.parquet")
+    exp = tmp_path / "e.toml"
+    exp.write_text(f'dataset = "{tmp_path / "d.parquet"}"\ntargets = ["y"]\nmethods = ["naive-mean"]\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "-q", "--store", str(tmp_path / "r")])
+    assert out.exit_code == 2 and out.output.startswith("error: ")
