@@ -82,6 +82,24 @@ def _created_ns(run: Run) -> int:
         return 0
 
 
+def _looks_like_run(path: Path) -> bool:
+    """A run folder: it has a run.json, or (a damaged one) a run's other parts and is not being created now."""
+    if not path.is_dir() or path.is_symlink() and not (path / "run.json").is_file():
+        return False
+    if (path / "run.json").is_file():
+        return True
+    parts = any((path / name).exists() for name in ("config.toml", "environment.json", "jobs"))
+    try:
+        settled = time.time() - path.stat().st_mtime > CREATING_S
+    except OSError:
+        return False
+    return parts and settled
+
+
+CREATING_S = 60.0
+"""A run folder without run.json younger than this is being created (run.json is written last), not damaged."""
+
+
 def _order(run: Run) -> tuple[int, str, int]:
     """Creation order: creation time, then the id with its '-k' suffix compared as a number."""
     base, k = _SUFFIX.match(run.id).groups()  # type: ignore[union-attr]
@@ -154,10 +172,12 @@ class RunStore:
         return run
 
     def runs(self) -> list[Run]:
-        """Every run of the store (a folder with a run.json), oldest first."""
+        """Every run of the store, oldest first: each folder with a run.json, and each folder that holds a run's
+        other parts (config.toml, environment.json, jobs/) without one, which ``Run.damage`` reports as damaged.
+        A folder still being created (claimed less than a minute ago, no run.json yet) is not listed."""
         if not self.root.is_dir():
             return []
-        return sorted((Run(p) for p in self.root.iterdir() if (p / "run.json").is_file()), key=_order)
+        return sorted((Run(p) for p in self.root.iterdir() if _looks_like_run(p)), key=_order)
 
     def get_own(self, ref: str, doing: str = "deleted") -> Run:
         """A run of this store, for commands that change or delete it: ``get``'s references, but an empty
@@ -170,6 +190,9 @@ class RunStore:
         run = self.get(ref)
         root, path = self.root.resolve(), run.path
         inside = not path.is_symlink() and path.resolve().parent == root and (path / "run.json").is_file()
+        if not inside and not path.is_symlink() and path.resolve().parent == root:
+            raise StoreError(f"{ref}: run folder {path} has no run.json, so it is not known to be a complete run of "
+                             f"the store; it is not {doing} by enginebench: remove it by hand if it is yours")
         if not inside:
             raise StoreError(f"{ref}: {path.resolve()} is not a run folder of the store {root}; only runs of the store "
                              f"are {doing} (give its id, or --store for another store)")

@@ -72,3 +72,24 @@ def test_a_symlink_in_the_store_to_a_folder_elsewhere_is_refused(world):
     link.symlink_to(foreign, target_is_directory=True)
     out = CliRunner().invoke(cli, ["runs", "rm", "linked", "--yes", "--store", str(store.root)])
     assert out.exit_code == 2 and (foreign / "notes.txt").exists()
+
+
+def test_a_run_folder_without_run_json_is_listed_as_damaged_and_not_deleted(world):
+    import time
+
+    store, run, _ = world
+    broken = store.root / "20260101-000000-half-abcdef"
+    (broken / "jobs").mkdir(parents=True)
+    (broken / "config.toml").write_text('name = "half"\n')
+    old = time.time() - 3600
+    os.utime(broken, (old, old))
+    listed = CliRunner().invoke(cli, ["runs", "list", "--store", str(store.root)])
+    assert listed.exit_code == 0 and "damaged" in listed.output and "run.json is missing" in listed.output
+    latest = CliRunner().invoke(cli, ["runs", "show", "latest", "--store", str(store.root)])
+    assert latest.exit_code == 0 and run.id in latest.output  # latest skips the damaged folder
+    out = CliRunner().invoke(cli, ["runs", "rm", broken.name, "--yes", "--store", str(store.root)])
+    assert out.exit_code == 2 and "has no run.json" in out.output and (broken / "config.toml").exists()
+    fresh = store.root / "20991231-000000-new-abcdef"  # being created right now: not listed
+    (fresh / "jobs").mkdir(parents=True)
+    listed = CliRunner().invoke(cli, ["runs", "list", "--store", str(store.root)])
+    assert fresh.name not in listed.output
