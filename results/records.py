@@ -17,6 +17,7 @@ import pandas as pd
 
 from enginebench.results.metrics import PER_SEGMENT
 from enginebench.results.stats import t_interval
+from enginebench.results.summary import BASELINE
 
 COLUMNS = ("target", "window", "method", "repetition", "part", "record", "metric", "value", "rows")
 
@@ -93,7 +94,7 @@ def to_rich(table: pd.DataFrame, metric: str, units: Mapping[str, str] | None = 
     return out
 
 
-def verdict(block: pd.DataFrame, records: list[str], baseline: str = "naive-mean") -> str:
+def verdict(block: pd.DataFrame, records: list[str], baseline: str = BASELINE) -> str:
     """One line: the method with the lowest mean over records, its margin over the next and over the baseline,
     and on how many records it is the best."""
     ranked = block.sort_values("mean", kind="stable")
