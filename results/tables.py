@@ -210,11 +210,22 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
         base = rows[rows["method"] == BASELINE]["mean"].to_numpy(dtype=float)
         if base.size != 1 or not np.isfinite(base[0]):
             continue
-        worse = rows[(rows["method"] != BASELINE) & (rows["mean"].to_numpy(dtype=float) > base[0])]
+        means = rows["mean"].to_numpy(dtype=float)
+        others = rows["method"] != BASELINE
+        worse = rows[others & (means > base[0])]
         for _, r in worse.iterrows():
             out.append(f"worse than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}; "
                        f"{r['target']}, Delta {r['window']:g} s, {r['split']}): its settings do not suit these data")
+        level = rows[others & (means <= base[0]) & (means > (1.0 - NO_BETTER) * base[0])]
+        for _, r in level.iterrows():
+            out.append(f"no better than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}, "
+                       f"within {NO_BETTER:.0%}; {r['target']}, Delta {r['window']:g} s, {r['split']}): it has learnt "
+                       "next to nothing here")
     return out
+
+
+NO_BETTER = 0.01
+"""A method whose error is within this fraction below the training mean's is flagged as no better than it."""
 
 
 def _labelled(summary: pd.DataFrame, metrics: Sequence[str] | None,

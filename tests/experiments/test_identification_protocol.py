@@ -365,6 +365,11 @@ def test_a_method_worse_than_the_training_mean_is_named_under_the_table():
         "worse than the training mean: sindy (rmse 1.5 vs 1; y, Delta 0 s, test): its settings do not suit these data",
         "worse than the training mean: krls (mae 2.5 vs 2; y, Delta 0 s, test): its settings do not suit these data",
     ]
+    level = summary.assign(mean=summary["mean"].where(summary["method"] != "arx", 0.995))
+    assert worse_than_baseline(level)[1] == (
+        "no better than the training mean: arx (rmse 0.995 vs 1, within 1%; y, Delta 0 s, test): it has learnt "
+        "next to nothing here")
+    assert len(worse_than_baseline(level)) == 3
 
 
 def test_record_patterns_expand_to_the_records_not_named_elsewhere():
