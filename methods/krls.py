@@ -93,8 +93,11 @@ class KRLS(Method):
         return {"gamma": log_grid(g_lo, g_hi, int(g_n)), "lambda": log_grid(l_lo, l_hi, int(l_n))}
 
     # -- shared preparation -------------------------------------------------------------
-    def _train_arrays(self, train: Samples) -> tuple[StandardScaler, np.ndarray, np.ndarray, np.ndarray]:
-        """Scaler, scaled training features, (centred) targets and the target mean."""
+    def _train_arrays(self, train: Samples) -> tuple[StandardScaler, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Scaler, scaled training features, (centred) targets over their power-of-two scale, the target mean and
+        that scale. Dividing by a power of two is exact, so the solutions are the same numbers at every scale: a
+        target of 1e-200 fits like one of 1 (its squares would underflow) and any other target bit for bit as
+        before; the solutions times the scale are the unscaled ones."""
         X, y = train.X, train.y
         if len(X) == 0:
             raise MethodError(f"method {self.name!r}: the training samples are empty; give at least one training row")
@@ -102,7 +105,9 @@ class KRLS(Method):
         _check_finite(y, "training targets", train.target_names, self.name)
         scaler = make_scaler(X, bool(self.options["standardize"]))
         y_mean = y.mean(axis=0) if self.options["center_target"] else np.zeros(y.shape[1])
-        return scaler, scaler.transform(X), y - y_mean, y_mean
+        yc = y - y_mean
+        y_scale = power_of_two_scale(yc)
+        return scaler, scaler.transform(X), yc / y_scale, y_mean, y_scale
 
     def _eval_features(self, scaler: StandardScaler, X_train: np.ndarray, data: Samples) -> np.ndarray:
         blocks = [s.X for s in data.segments]
@@ -119,13 +124,13 @@ class KRLS(Method):
     # -- single grid point --------------------------------------------------------------
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> KRLSFitted:
         gamma, lam = _params(params)
-        scaler, Xs, yc, y_mean = self._train_arrays(train)
+        scaler, Xs, yc, y_mean, y_scale = self._train_arrays(train)
         if self.uses_falkon(len(Xs)):
             solver = self._falkon(gamma, lam).fit(Xs, yc, rng)
-            return KRLSFitted(scaler=scaler, X_train=solver.centres_, alpha=solver.coef_, gamma=gamma, lam=lam, y_mean=y_mean,
-                              solver="falkon")
+            return KRLSFitted(scaler=scaler, X_train=solver.centres_, alpha=solver.coef_ * y_scale, gamma=gamma,
+                              lam=lam, y_mean=y_mean, solver="falkon")
         alpha = ridge_solutions(gaussian(sq_distances(Xs), gamma), yc, np.array([lam]), overwrite=True)[0][:, 0, :]
-        return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha, gamma=gamma, lam=lam, y_mean=y_mean)
+        return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha * y_scale, gamma=gamma, lam=lam, y_mean=y_mean)
 
     def predict(self, fitted: KRLSFitted, data: Samples) -> list[np.ndarray]:
         Xe = self._eval_features(fitted.scaler, fitted.X_train, data)
@@ -147,7 +152,7 @@ class KRLS(Method):
         one weighted row (``numerics/repeats.py``): the same predictions from a smaller system.
         """
         pairs = [_params(p) for p in grid]
-        scaler, Xs, yc, y_mean = self._train_arrays(train)
+        scaler, Xs, yc, y_mean, y_scale = self._train_arrays(train)
         Xe = self._eval_features(scaler, Xs, data)
         out = np.empty((len(pairs), len(Xe), yc.shape[1]))
         if not pairs:
@@ -161,7 +166,7 @@ class KRLS(Method):
                 idx = np.flatnonzero(gammas == gamma)
                 out[idx], _ = falkon_path(Xs, yc, Xe, gamma, lambdas[idx], int(self.options["centres"]), rng,
                                           device=self.options["device"])
-            return out + y_mean
+            return out * y_scale + y_mean
         groups = RowGroups.of(Xs)  # a bootstrap's repeated rows: one weighted row each, same solutions
         if groups is not None:
             Xs, yc = Xs[groups.first], groups.targets(yc)
@@ -170,8 +175,16 @@ class KRLS(Method):
             alpha, _ = ridge_solutions(K, yc, lambdas[idx], overwrite=True)
             pred = Ke @ alpha.reshape(n, len(idx) * k)
             out[idx] = pred.reshape(len(Xe), len(idx), k).transpose(1, 0, 2)
+        out *= y_scale
         out += y_mean
         return out
+
+
+def power_of_two_scale(y: np.ndarray) -> np.ndarray:
+    """Per column, the power of two nearest above its largest |value| (1 for an all-zero or non-finite column)."""
+    top = np.max(np.abs(y), axis=0) if len(y) else np.zeros(y.shape[1])
+    exponent = np.frexp(np.where(np.isfinite(top) & (top > 0), top, 1.0))[1]
+    return np.ldexp(1.0, exponent)
 
 
 def gamma_kernels(Xs: np.ndarray, Xe: np.ndarray, gammas: np.ndarray, groups: RowGroups | None

@@ -201,7 +201,7 @@ class NFIR(InputHistory, KRLS):
                 out[members] = KRLS.predict_grid(self, sub, self.lagged(data, lags, eval_cols),
                                                  [{"gamma": g, "lambda": lam} for g, lam in zip(gammas, lambdas)], rng)
                 continue
-            scaler, Xs, yc, y_mean = self._train_arrays(sub)
+            scaler, Xs, yc, y_mean, y_scale = self._train_arrays(sub)
             Xe = scaler.transform(self.lagged(data, lags, eval_cols).X)
             D_train = sq_distances(Xs)
             for gamma in dict.fromkeys(gammas.tolist()):
@@ -213,5 +213,5 @@ class NFIR(InputHistory, KRLS):
                 for a in range(0, len(Xe), PREDICT_CHUNK):
                     K = gaussian(sq_distances(Xe[a:a + PREDICT_CHUNK], Xs), gamma)
                     block = (K @ alpha).reshape(len(K), len(idx), k_out)
-                    out[target, a:a + PREDICT_CHUNK] = np.moveaxis(block, 1, 0) + y_mean
+                    out[target, a:a + PREDICT_CHUNK] = np.moveaxis(block, 1, 0) * y_scale + y_mean
         return out
