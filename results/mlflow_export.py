@@ -163,6 +163,13 @@ def _log(client, run_id: str, params: dict[str, str], metrics: dict[str, float],
     return len(values)
 
 
+def _quote_in_name(exc: BaseException, name: str) -> None:
+    """MLflow's stores look experiments up by a filter string that a quote in the name breaks: say so."""
+    if "'" in name and "filter string" in str(exc):
+        raise ExportError(f"MLflow cannot look up or create an experiment named {name!r}: its stores search names "
+                          "with a filter that a quote (') breaks; pass --experiment with a name without one") from None
+
+
 def _destination(client, uri: str, name: str, run_id: str, replace: bool, *,
                  create: bool) -> tuple[str | None, list]:
     """(the experiment's id, the runs of earlier exports of ``run_id`` in it), refused if any unless ``replace``.
@@ -204,6 +211,7 @@ def check_destination(run: Run, tracking_uri: str | Path, *, experiment: str | N
     try:
         _destination(client, uri, name, run.id, replace, create=False)
     except (MlflowException, OSError) as exc:
+        _quote_in_name(exc, name)
         raise ExportError(f"MLflow ({uri}): {_first_line(exc)}") from None
 
 
@@ -254,6 +262,7 @@ def export_run(
         artifacts = _log_artifacts(client, parent, run, layout, report_dir)
         client.set_terminated(parent, layout.status)
     except (MlflowException, OSError, ExportError) as exc:
+        _quote_in_name(exc, name)
         for run_id in reversed(created):  # leave no half export behind (best effort: the store may be gone)
             try:
                 client.delete_run(run_id)

@@ -263,3 +263,16 @@ def test_krls_fits_targets_of_any_scale_alike():
         np.testing.assert_array_equal(out / f, base)
         grid = m.predict_grid(scaled, test.without_targets(), [p], np.random.default_rng(0))[0]
         np.testing.assert_allclose(grid / f, base, rtol=1e-12)
+
+
+def test_an_experiment_name_with_a_quote_is_explained_for_mlflow(tmp_path):
+    import pytest
+
+    pytest.importorskip("mlflow")
+    store = RunStore(tmp_path / "runs")
+    stored_run(store, "o'brien", {"naive-mean": [1.0, 2.0]})
+    out = CliRunner().invoke(cli, ["export", "latest", "--mlflow", str(tmp_path / "ml"), "--store", str(store.root)])
+    assert out.exit_code == 2 and "a quote (') breaks; pass --experiment with a name without one" in out.output
+    ok = CliRunner().invoke(cli, ["export", "latest", "--mlflow", str(tmp_path / "ml"), "--experiment", "obrien",
+                                  "--store", str(store.root)])
+    assert ok.exit_code == 0, ok.output
