@@ -149,10 +149,16 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
     first_texts = None
     if second.strip():
         first_texts = [f.strip() for f in _fields(second, delim)]
+    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=True)
+    return FileTable(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
+
+
+def _parse_fields(file: Path, delim: str, header: list[str], pos: dict[str, int], required: dict[str, str],
+                  text_cols: list[str], *, header_row: bool) -> pd.DataFrame:
+    """The file's cells (``_parse_csv``), text columns as text; a float column that overflowed holds inf where
+    the file holds text such as 1e309: it is re-read as text so that the error quotes the value as written."""
     text_pos = sorted({pos[c] for c in text_cols})
-    raw = _parse_csv(file, delim, len(header), text_pos)
-    # A float column that overflowed holds inf where the file holds text such as 1e309: re-read it
-    # as text so that the error quotes the value as written.
+    raw = _parse_csv(file, delim, len(header), text_pos, header_row=header_row)
     overflow = [
         pos[c]
         for c in required
@@ -161,8 +167,8 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
         and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
     ]
     if overflow:
-        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)))
-    return FileTable(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
+        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)), header_row=header_row)
+    return raw
 
 
 def _fields(line: str, delim: str) -> list[str]:
@@ -205,17 +211,7 @@ def _read_headerless(file: Path, spec: ImportSpec, required: dict[str, str], tex
             "give every field its name in file order (names = [...], or the [columns] order)"
         )
     pos = {h: i for i, h in enumerate(header)}
-    text_pos = sorted({pos[c] for c in text_cols})
-    raw = _parse_csv(file, delim, len(header), text_pos, header_row=False)
-    overflow = [
-        pos[c]
-        for c in required
-        if pos[c] not in text_pos
-        and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
-        and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
-    ]
-    if overflow:
-        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)), header_row=False)
+    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=False)
     return FileTable(raw, header, np.arange(len(raw)) + 1, "line", {}, first, pos)
 
 
