@@ -10,6 +10,25 @@ from enginebench.results.store import RunStore
 from helpers import stored_run
 
 
+def records_parquet(tmp_path, *, records: int, rows: int, nan_at: int | None = None):
+    """A Parquet dataset of ``records`` records s0, s1, ... of ``rows`` samples: input u, output y (random);
+    ``nan_at``: a NaN in y at that row of s0."""
+    import numpy as np
+    import pandas as pd
+
+    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+    from enginebench.datasets.io import write_dataset
+    from enginebench.datasets.schema import Column, Schema
+
+    rng = np.random.default_rng(0)
+    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(float(rows)), "u": rng.normal(size=rows),
+                                     "y": rng.normal(size=rows)}) for k in range(records)], ignore_index=True)
+    if nan_at is not None:
+        frame.loc[nan_at, "y"] = np.nan
+    return write_dataset(Dataset("d", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
+                         tmp_path / "d.parquet")
+
+
 def test_a_field_over_128_kib_is_read_and_reported_in_one_short_line(tmp_path):
     (tmp_path / "big.csv").write_text("u,y\n1," + "7" * 140_000 + "x\n2,3\n4,5\n")
     (tmp_path / "big.toml").write_text('name = "b"\ndt = 1.0\nfiles = ["big.csv"]\n[columns]\n'
@@ -101,18 +120,7 @@ def test_a_text_group_column_made_an_input_is_one_line(tmp_path):
 
 
 def test_an_option_naming_a_missing_input_is_refused_before_the_first_job(tmp_path):
-    import numpy as np
-    import pandas as pd
-
-    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-    from enginebench.datasets.io import write_dataset
-    from enginebench.datasets.schema import Column, Schema
-
-    rng = np.random.default_rng(0)
-    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(60.0), "u": rng.normal(size=60),
-                                     "y": rng.normal(size=60)}) for k in range(2)], ignore_index=True)
-    path = write_dataset(Dataset("d", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
-                         tmp_path / "d.parquet")
+    path = records_parquet(tmp_path, records=2, rows=60)
     exp = tmp_path / "e.toml"
     exp.write_text(f'dataset = "{path}"\ntargets = ["y"]\nmode = "simulation"\nrepetitions = 1\ntrain_size = 0\n'
                    '[split]\nkind = "records"\ntrain = ["s0"]\ntest = ["s1"]\n[selection]\nkind = "none"\n'
@@ -124,20 +132,10 @@ def test_an_option_naming_a_missing_input_is_refused_before_the_first_job(tmp_pa
 
 
 def test_compare_of_two_simulation_runs_uses_the_simulation_metrics(tmp_path):
-    import numpy as np
-    import pandas as pd
-
-    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-    from enginebench.datasets.io import write_dataset
-    from enginebench.datasets.schema import Column, Schema
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import from_dict
 
-    rng = np.random.default_rng(0)
-    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(80.0), "u": rng.normal(size=80),
-                                     "y": rng.normal(size=80)}) for k in range(3)], ignore_index=True)
-    path = write_dataset(Dataset("d", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
-                         tmp_path / "d.parquet")
+    path = records_parquet(tmp_path, records=3, rows=80)
     store = RunStore(tmp_path / "runs")
     ids = []
     for seed in (0, 1):
@@ -185,19 +183,7 @@ def test_work_beyond_any_run_is_refused_before_the_data_are_read(tmp_path, monke
 
 
 def test_a_run_whose_every_job_failed_prints_each_reason(tmp_path):
-    import numpy as np
-    import pandas as pd
-
-    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-    from enginebench.datasets.io import write_dataset
-    from enginebench.datasets.schema import Column, Schema
-
-    rng = np.random.default_rng(0)
-    frame = pd.concat([pd.DataFrame({SEGMENT: f"s{k}", TIME: np.arange(50.0), "u": rng.normal(size=50),
-                                     "y": rng.normal(size=50)}) for k in range(2)], ignore_index=True)
-    frame.loc[5, "y"] = np.nan
-    path = write_dataset(Dataset("nan", frame, Schema((Column("u", "input"), Column("y", "output"))), 1.0, {}),
-                         tmp_path / "nan.parquet")
+    path = records_parquet(tmp_path, records=2, rows=50, nan_at=5)
     exp = tmp_path / "e.toml"
     exp.write_text(f'dataset = "{path}"\ntargets = ["y"]\nmode = "simulation"\nrepetitions = 1\ntrain_size = 0\n'
                    '[split]\nkind = "records"\ntrain = ["s0"]\ntest = ["s1"]\n[selection]\nkind = "none"\n'
