@@ -90,17 +90,14 @@ class LagGram:
 
     def _inputs(self, U: np.ndarray, start: int, stop: int) -> np.ndarray:
         """[u_j lags 0..Pu-1 per input, 1] at rows start..stop-1 (lags before the first row hold 0)."""
-        pad = self.L
-        Up = np.vstack([np.zeros((pad, self.m)), U])
-        cols = [sliding_window_view(Up[pad + start - self.Pu + 1:pad + stop, j], self.Pu)[:, ::-1]
-                for j in range(self.m)]
+        Up = _padded(U, start - self.Pu + 1, stop)
+        cols = [sliding_window_view(Up[:, j], self.Pu)[:, ::-1] for j in range(self.m)]
         cols.append(np.ones((stop - start, 1)))
         return np.hstack(cols)
 
     def _outputs(self, y: np.ndarray, start: int, stop: int) -> np.ndarray:
         """[y lags 1..Py, y] at rows start..stop-1 (lags before the first row hold 0)."""
-        yp = np.r_[np.zeros(self.L), y]
-        lags = sliding_window_view(yp[self.L + start - self.Py:self.L + stop - 1], self.Py)[:, ::-1]
+        lags = sliding_window_view(_padded(y, start - self.Py, stop - 1), self.Py)[:, ::-1]
         return np.hstack([lags, y[start:stop, None]])
 
     def _columns(self, o: Orders) -> tuple[np.ndarray, np.ndarray]:
@@ -144,6 +141,13 @@ class LagGram:
         for U, y in used:
             g += _correlate(y, U, y - _apply(y, U, o, theta), o)
         return theta + scipy.linalg.cho_solve((R, False), g / d, check_finite=False) / d
+
+
+def _padded(a: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Rows lo..hi-1 of ``a``, rows before 0 as zeros (only the rows a lag window reads are copied)."""
+    if lo >= 0:
+        return a[lo:hi]
+    return np.concatenate([np.zeros((-lo, *a.shape[1:])), a[:hi]])
 
 
 def _apply(y: np.ndarray, U: np.ndarray, o: Orders, theta: np.ndarray) -> np.ndarray:
