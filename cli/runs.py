@@ -57,12 +57,17 @@ def runs_list(dataset, method, statuses, tags, since, fmt, width, store) -> None
 @click.argument("run_ref", metavar="RUN", default="latest")
 @store_option
 def runs_show(run_ref: str, store) -> None:
-    """Config, environment, tags, plugin files, failure reasons and warnings, timings and a per-method summary of RUN."""
+    """Config, environment, tags, plugin files, failure reasons and warnings, timings, a per-method summary of RUN
+    and the hyperparameters its jobs selected (per method and target; where repetitions differ, how many jobs
+    picked each value: `enginebench table RUN --picks` lists every job, `--folds` the scores behind each pick).
+
+    RUN is an id, a unique id prefix, 'latest' or a run folder."""
     from enginebench.results.notes import run_note_lines
-    from enginebench.results.store import RunStore
+    from enginebench.results.picks import picks_frame, picks_lines
+    from enginebench.results.store import open_run
     from enginebench.results.tables import summarize
 
-    run = RunStore(store).get(run_ref)
+    run = open_run(run_ref, store)
     info, cfg, env = run.info(), run.config(), run.environment()
     plugins = run.plugins() or []
     metrics = run.metrics() if run.job_files() else None  # read first: a damaged job file is the only line printed
@@ -91,6 +96,9 @@ def runs_show(run_ref: str, store) -> None:
     summary = summarize(metrics, interval=cfg.get("interval", "t"))
     main = summary[summary["metric"].isin(["mae", "rmae"])][["target", "window", "split", "method", "metric", "mean", "ci_low", "ci_high", "n_repeats", "n_failed"]]
     click.echo("\n" + main.to_string(index=False))
+    click.echo("\nselected hyperparameters (`enginebench table RUN --picks` lists every job):")
+    for line in picks_lines(picks_frame(run)):
+        click.echo("  " + line)
 
 
 def _edited(run, tags: dict[str, str]) -> None:

@@ -24,9 +24,17 @@ from enginebench.cli.options import check_metrics, check_output, emit, split_lis
 @click.option("--by-record", "by_record", is_flag=True,
               help="One column per test record (the first --metrics metric, default nrmse in simulation mode, else mae) "
                    "and the mean over records with its 95% t interval (n = records); term or csv.")
+@click.option("--picks", is_flag=True,
+              help="The hyperparameters each job selected: one block per method, one row per job (term or csv).")
+@click.option("--folds", is_flag=True,
+              help="Each job's selection scores: its --top best grid points by mean score with the score on every "
+                   "resample or fold, * on the selected one; jobs without a stored selection table are named with "
+                   "why (term or csv; with --picks in term, after the picks).")
+@click.option("--top", type=click.IntRange(min=1), default=3, show_default=True,
+              help="Grid points per job that --folds shows (the selected one always).")
 @store_option
 def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, output, width, by_record: bool,
-          store) -> None:
+          picks: bool, folds: bool, top: int, store) -> None:
     """Print the comparison table of RUN (an id, a unique prefix, 'latest' or a run folder).
 
     csv is the long table: one row per dataset, target, mode, window, method, split and
@@ -34,14 +42,18 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     n_failed, and each metric's unit. The other formats are wide: one column per metric,
     mean ± half-width, headed with its unit (mae [degC], mape [%]). The term format prints
     one block per (target, mode, Delta, split) that fits the terminal (or --width).
+    --picks and --folds print the chosen model instead: the selected hyperparameters and the
+    selection scores behind them (docs/runs.md).
     """
     from enginebench.results import tables
     from enginebench.results.notes import run_note_lines
-    from enginebench.results.store import RunStore
+    from enginebench.results.store import open_run
     from enginebench.results.units import run_units
 
     check_output(output)
-    run = RunStore(store).get(run_ref)
+    run = open_run(run_ref, store)
+    if picks or folds:
+        return _picks(run, fmt, picks, folds, top, output)
     if by_record:
         return _by_record(run, split_list(metrics), fmt, output, width)
     interval = interval or run.config().get("interval", "t")
@@ -110,6 +122,27 @@ def _by_record(run, metrics: list[str], fmt: str, output, width) -> None:
     for t in to_rich(result, metric, run_units(run.info())):
         console.print(t)
         console.print()
+
+
+def _picks(run, fmt: str, picks: bool, folds: bool, top: int, output) -> None:
+    from enginebench.results.picks import folds_frame, folds_text, missing_folds_lines, picks_frame, picks_text
+
+    if fmt not in ("term", "csv"):
+        raise click.UsageError("--picks and --folds print term or csv tables")
+    if fmt == "csv" and picks and folds:
+        raise click.UsageError("--format csv prints one table: give --picks or --folds (the folds' rows hold the "
+                               "picked values too)")
+    chosen = picks_frame(run)
+    if fmt == "csv":
+        emit((chosen if picks else folds_frame(run, top)).to_csv(index=False), output)
+        return
+    text = picks_text(chosen) if picks else ""
+    if folds:
+        scored = folds_frame(run, top)
+        missing = missing_folds_lines(chosen)
+        text += ("\n" if text else "") + folds_text(scored, run.config().get("selection", {}).get("kind")) + ("\n" if len(scored) and missing else "")
+        text += "".join(f"no selection table: {line}\n" for line in missing)
+    emit(text, output)
 
 
 def paired_lines(tests, metric: str, width: int | None = None) -> str:

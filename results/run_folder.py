@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,6 +110,12 @@ class Run:
     """One run folder."""
 
     path: Path
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.path, (str, os.PathLike)):
+            raise TypeError(f"Run takes a run folder (str or Path), not {type(self.path).__name__} {self.path!r}; "
+                            "enginebench.api.open_run opens a run by id or folder")
+        self.path = Path(self.path)
 
     @property
     def id(self) -> str:

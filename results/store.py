@@ -49,7 +49,7 @@ from enginebench.results.run_lock import LOCK_FILE
 
 __all__ = ["DEFAULT_STORE", "DISK_FULL", "JOB_META_KEY", "LOCK_FILE", "READ_ERRORS", "REQUIRED_FILES",
            "SELECTION_COLUMNS", "SELECTION_DIR", "SELECTION_META", "ResumeState", "Run", "RunStore", "methods_used",
-           "store_root"]
+           "open_run", "store_root"]
 
 DEFAULT_STORE = "enginebench-runs"
 
@@ -221,3 +221,23 @@ class RunStore:
         if len(matches) > 1:
             raise StoreError(f"run reference {ref!r} is ambiguous in {self.root}: {', '.join(r.id for r in matches[:5])}")
         return matches[0]
+
+
+def open_run(ref: str | os.PathLike[str], store: str | os.PathLike[str] | None = None) -> Run:
+    """A run by its folder or by reference: a ``Path`` (or a string naming an existing folder, or one with a
+    path separator) is a run folder; any other string is an id, a unique id prefix or 'latest' in ``store``
+    (default: $ENGINEBENCH_STORE, else ./enginebench-runs). A reference that finds no run is a StoreError
+    of one line saying what to give instead; a reference of another type is a TypeError."""
+    if not isinstance(ref, (str, os.PathLike)):
+        raise TypeError(f"open_run takes a run id or a run folder (str or Path), not {type(ref).__name__} {ref!r}")
+    text = os.fspath(ref)
+    path = Path(text)
+    if not isinstance(ref, os.PathLike) and not path.is_dir() and os.sep not in text and "/" not in text:
+        return RunStore(store).get(text)
+    if not path.is_dir():
+        raise StoreError(f"no run folder {path}: it does not exist; give a run's folder, or its id in the store "
+                         f"{store_root(store)} ('enginebench runs list' shows them)")
+    if not (path / "run.json").is_file() and not _looks_like_run(path):
+        raise StoreError(f"{path} is not a run folder (it has no run.json); give a run's folder, or its id in the "
+                         f"store {store_root(store)} ('enginebench runs list' shows them)")
+    return Run(path)
