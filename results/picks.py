@@ -116,7 +116,8 @@ def _group_line(label: str, group: pd.DataFrame) -> str:
             parts.append(f"{name}=" + ", ".join(f"{v} ({k}/{total})" for v, k in ranked))
     fixed = " [fixed: nothing scored]" if (chose["how"] == "fixed").all() else ""
     if agree:
-        return f"{label}: {' '.join(parts)}{fixed} (all {len(chose)} job{'s' if len(chose) > 1 else ''}{tail})"
+        return f"{label}: {' '.join(parts)}{fixed} ({'all ' if len(chose) > 1 else ''}{len(chose)} "\
+               f"job{'s' if len(chose) > 1 else ''}{tail})"
     return f"{label}: {'; '.join(parts)}{fixed} ({len(chose)} jobs{tail})"
 
 
