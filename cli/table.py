@@ -140,7 +140,8 @@ def _picks(run, fmt: str, picks: bool, folds: bool, top: int, output) -> None:
     if folds:
         scored = folds_frame(run, top)
         missing = missing_folds_lines(chosen)
-        text += ("\n" if text else "") + folds_text(scored, run.config().get("selection", {}).get("kind")) + ("\n" if len(scored) and missing else "")
+        kind = run.config().get("selection", {}).get("kind")
+        text += ("\n" if text else "") + folds_text(scored, kind) + ("\n" if len(scored) and missing else "")
         text += "".join(f"no selection table: {line}\n" for line in missing)
     emit(text, output)
 

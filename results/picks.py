@@ -224,7 +224,7 @@ def folds_text(folds: pd.DataFrame, kind: str | None = None) -> str:
         table = group.assign(rank=[f"{'*' if c else ' '}{r}" for c, r in zip(group["chosen"], group["rank"])])
         columns = ["rank", "point", *[c for c in group.columns if c.startswith(PARAM) and group[c].map(_present).any()],
                    "mean", "sd", *shown]
-        text = _display(table, columns).rename(columns=lambda c: "r" + c[len(RESAMPLE):] if c.startswith(RESAMPLE) else c)
+        text = _display(table, columns).rename(columns=lambda c: c.replace(RESAMPLE, "r", 1))
         blocks.append(head + "\n" + text.to_string(index=False))
     return "\n\n".join(blocks) + ("\n" if blocks else "")
 
