@@ -216,16 +216,17 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
         for _, r in worse.iterrows():
             out.append(f"worse than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}; "
                        f"{r['target']}, Delta {r['window']:g} s, {r['split']}): its settings do not suit these data")
-        level = rows[others & (means <= base[0]) & (means > (1.0 - NO_BETTER) * base[0])]
+        level = rows[others & (means <= base[0]) & (means >= (1.0 - NO_BETTER) * base[0])]
         for _, r in level.iterrows():
-            out.append(f"no better than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}, "
-                       f"within {NO_BETTER:.0%}; {r['target']}, Delta {r['window']:g} s, {r['split']}): it has learnt "
-                       "next to nothing here")
+            out.append(f"no better than the training mean (within {100 * NO_BETTER:g} %): {r['method']} ({metric} "
+                       f"{r['mean']:.4g} vs {base[0]:.4g}; {r['target']}, Delta {r['window']:g} s, {r['split']}): it "
+                       "has learnt next to nothing here")
     return out
 
 
-NO_BETTER = 0.01
-"""A method whose error is within this fraction below the training mean's is flagged as no better than it."""
+NO_BETTER = 0.02
+"""A method whose error is within this fraction below the training mean's (at least 0.98 x it) is flagged as no better
+than it."""
 
 
 def _labelled(summary: pd.DataFrame, metrics: Sequence[str] | None,

@@ -367,7 +367,7 @@ def test_a_method_worse_than_the_training_mean_is_named_under_the_table():
     ]
     level = summary.assign(mean=summary["mean"].where(summary["method"] != "arx", 0.995))
     assert worse_than_baseline(level)[1] == (
-        "no better than the training mean: arx (rmse 0.995 vs 1, within 1%; y, Delta 0 s, test): it has learnt "
+        "no better than the training mean (within 2 %): arx (rmse 0.995 vs 1; y, Delta 0 s, test): it has learnt "
         "next to nothing here")
     assert len(worse_than_baseline(level)) == 3
 

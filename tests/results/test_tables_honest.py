@@ -259,3 +259,17 @@ def test_the_terminal_table_of_a_diverging_simulation_shows_the_count(tmp_path, 
     assert out.exit_code == 0, out.output
     line = next(x for x in out.output.splitlines() if "test-runaway" in x)
     assert f"{int(wild)}/8" in line and "rmse" in out.output and "nrmse" in out.output and "fit" in out.output
+
+
+@pytest.mark.parametrize("better, flagged", [(0.0, True), (0.015, True), (0.02, True), (0.025, False), (0.1, False)])
+def test_a_method_within_2_percent_of_the_training_mean_is_flagged_as_no_better(better, flagged):
+    """Flagged when its error is at least 0.98 x the training mean's: 1.5 % better is flagged, 2.5 % better is not."""
+    summary = pd.DataFrame([{"dataset": "d", "target": "y", "mode": "simulation", "window": 0.0, "split": "test",
+                             "method": method, "metric": "rmse", "mean": mean}
+                            for method, mean in ((tables.BASELINE, 2.0), ("arx", 2.0 * (1.0 - better)))])
+    notes = tables.worse_than_baseline(summary)
+    if flagged:
+        assert notes == [f"no better than the training mean (within 2 %): arx (rmse {2.0 * (1.0 - better):.4g} vs 2; "
+                         "y, Delta 0 s, test): it has learnt next to nothing here"]
+    else:
+        assert notes == []
