@@ -1,0 +1,94 @@
+"""``neural-ss``: a neural state-space model in the SUBNET style, trained on the free-run (simulation) loss.
+
+Model, on standardised signals (training mean and SD)::
+
+    x(t0)  = E(u(t0-L..t0-1), y(t0-L..t0-1))             encoder: linear + MLP of the init window
+    x(t+1) = A x(t) + B u(t) + f(x(t), u(t))              state transition: linear skip + MLP
+    y(t)   = C x(t) + D u(t) + h(x(t), u(t))              output map: linear skip + MLP
+
+f and h are the two heads of one MLP (``layers`` tanh layers of ``hidden`` units, nx + ny
+outputs): sharing the hidden layers halves the cost of a simulated step, which is the
+whole cost of training. The input part of the first layer and of the linear skip is
+computed for all time steps at once; a step is then one product with x, the hidden
+layers and one output product.
+
+Training, early stopping, the init window, the batched free run and divergence are
+``methods/neural_sim.py`` (shared with ``gru``). Defaults and why:
+
+- nx = 4 states per target (at most 16): a mechanical mode needs 2, the rest is room for
+  the nonlinearity and an input filter; the search is that one value unless ``nx`` lists
+  several (training is the cost, so nothing is searched by default).
+- lags = 2 nx samples (at most a quarter of the shortest record): enough measured
+  samples to observe nx states with noise.
+- horizon T = 100 samples (at most half the longest record's fitting part): long enough
+  that the loss sees the model's own feedback over many steps, short enough that
+  gradients through the recursion stay tame.
+- 3,000 Adam steps of 256 subsections, lr 1e-3, 64 hidden units x 2 layers, early
+  stopping on the free-run error of the last 15 % of every training record: a cost
+  bounded independently of the record length (minutes on two CPU cores).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from enginebench.methods.neural_sim import Encoder, NetConfig, NeuralSimFit, NeuralSimulator, declaration, mlp
+
+NAME = "neural-ss"
+
+
+class StateSpaceNet(nn.Module):
+    """Encoder, and one step x(t) -> (x(t+1), y(t)) as a linear skip plus a two-headed MLP."""
+
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        self.nx, self.ny = cfg.nx, cfg.ny
+        self.encoder = Encoder(cfg.lags, cfg.nu, cfg.ny, cfg.nx, cfg.hidden, cfg.layers)
+        self.linear = nn.Linear(cfg.nx + cfg.nu, cfg.nx + cfg.ny)  # [[A, B], [C, D]] and a constant
+        self.mlp = mlp(cfg.nx + cfg.nu, cfg.nx + cfg.ny, cfg.hidden, cfg.layers)  # [f; h]
+
+    def forward(self, past_u: torch.Tensor, past_y: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Outputs (batch, T, ny) of a free run over inputs ``u`` (batch, T, nu) from the encoded window."""
+        x = self.encoder(past_u, past_y)
+        nx, m = self.nx, self.nx + self.ny
+        first: nn.Linear = self.mlp[0]  # type: ignore[assignment]
+        rest = self.mlp[1:]
+        w_x = torch.cat([self.linear.weight[:, :nx], first.weight[:, :nx]]).T.contiguous()
+        w_u = torch.cat([self.linear.weight[:, nx:], first.weight[:, nx:]]).T
+        drive = torch.matmul(u.transpose(0, 1), w_u) + torch.cat([self.linear.bias, first.bias])  # (T, batch, m + H)
+        ys = []
+        for t in range(u.shape[1]):
+            z = torch.addmm(drive[t], x, w_x)
+            out = z[:, :m] + rest(z[:, m:])
+            ys.append(out[:, nx:])
+            x = out[:, :nx]
+        if not ys:
+            return u.new_zeros((u.shape[0], 0, self.ny))
+        return torch.stack(ys, dim=1)
+
+
+class NeuralSS(NeuralSimulator):
+    """Neural state space (SUBNET style): encoder of the init window, linear + MLP transition and output."""
+
+    name = NAME
+    summary = ("neural state space (SUBNET style): encoder from the init window, x+ = Ax + Bu + f(x, u), "
+               "y = Cx + Du + h(x, u), trained on the free-run loss of subsections (torch)")
+    state_per_target = 4
+    max_state = 16
+    declared_options = declaration("state size nx: None = 4 per target, at most 16",
+                                   "hidden units of each MLP layer (encoder, state transition and output map)")
+
+    def network(self, config: NetConfig) -> nn.Module:
+        return StateSpaceNet(config)
+
+    def model_facts(self, net: nn.Module, fitted: NeuralSimFit) -> dict[str, Any]:
+        """The linear skip's A and its spectral radius (standardised units; the MLP adds to it)."""
+        A = net.linear.weight[:, :fitted.config.nx][:fitted.config.nx].detach().double().numpy()
+        radius = float(np.abs(np.linalg.eigvals(A)).max()) if A.size else 0.0
+        return {"model": "x(t+1) = A x + B u + f(x, u), y = C x + D u + h(x, u), x(t0) = encoder(init window); "
+                         "f, h one tanh MLP with two heads; standardised signals",
+                "linear_skip_A": A.tolist(), "linear_skip_spectral_radius": radius}
