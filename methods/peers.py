@@ -6,13 +6,21 @@ in, free-run predictions from the state initialisation window out, divergence fl
 and hyperparameters searched by the toolkit's selection on free-run error.
 
 - ``sysidentpy-narx``: SysIdentPy's polynomial NARX, structure by FROLS (forward
-  regression orthogonal least squares, the number of terms by AIC), parameters by
-  least squares. Searched: polynomial degree and lags (``ylag = xlag``, samples;
-  SysIdentPy's input lags start at 1). Free run through SysIdentPy's ``predict`` with the
-  last ``max_lag`` outputs of the init window as initial conditions (edge padded when
-  the window is shorter).
+  regression orthogonal least squares, the number of terms by SysIdentPy's information
+  criterion, AIC by default), parameters by least squares. Searched: polynomial degree
+  (1-3) and lags (``ylag = xlag``, samples, on ``LAG_LADDER`` up to 10 within what the data
+  carry; SysIdentPy's input lags start at 1). The criterion's curve over 1 ..
+  ``n_info_values`` terms is read off one forward regression (``_prefix_information_criterion``:
+  the same values as SysIdentPy's own loop, which reruns the regression once per term
+  count, about 10x the time). A (degree, lags) point whose candidate set exceeds
+  ``max_candidates`` terms is skipped by the grid with its reason noted. Free run through
+  SysIdentPy's ``predict`` with the last ``max_lag`` outputs of the init window as initial
+  conditions (edge padded when the window is shorter).
 - ``n4sid``: a linear state-space model x+ = A x + B u, y = C x + D u by subspace
-  identification (the ``nfoursid`` package, PO-MOESP/N4SID). Searched: the state order.
+  identification (the ``nfoursid`` package, PO-MOESP/N4SID). Searched: the state order
+  (``ORDER_LADDER`` up to 32); an order the data cannot carry (too few samples for its
+  block Hankel matrices, a failed or singular decomposition) is left out or skipped with
+  its reason noted (``describe()["skipped"]``), never failing the job.
   The initial state is the least-squares fit of the init window's measured outputs given
   its inputs (y_t = C A^t x0 + forced response); with y0 alone it is the minimum-norm
   state reproducing y0.
@@ -31,6 +39,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import types
 import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar, Sequence
@@ -46,6 +55,18 @@ from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orde
 
 INSTALL = 'pip install "enginebench[peers]"'
 INFO_CRITERIA = ("aic", "aicc", "bic", "fpe", "lilc")
+LAG_LADDER = (1, 2, 4, 6, 8, 10)
+"""``sysidentpy-narx``'s lags (ylag = xlag) searched by default, within what the data carry."""
+ORDER_LADDER = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
+"""``n4sid``'s state orders searched by default, within what the data carry."""
+
+
+class Infeasible(MethodError):
+    """A grid point the training data cannot carry: the grid skips it (noted), ``fit`` refuses it."""
+
+    def __init__(self, who: str, reason: str) -> None:
+        super().__init__(f"method {who!r}: {reason}")
+        self.reason = reason
 
 
 def _missing(module: str) -> str | None:
@@ -74,6 +95,35 @@ class PeerMethod(Method):
         if reason:
             raise MethodError(f"method {self.name!r} {reason}")
         super().__init__(**options)
+        self.skipped: list[str] = []
+        """Grid values left out or skipped in the last search, each with its reason (``describe()["skipped"]``)."""
+
+    def note_skipped(self, reason: str) -> None:
+        """Record a grid value the data cannot carry (once)."""
+        if reason not in self.skipped:
+            self.skipped.append(reason)
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Each point fitted and predicted; a point the data cannot carry (``Infeasible``) scores +inf (NaN), noted,
+        and the others go on."""
+        out = np.empty((len(grid), len(data), len(train.target_names)))
+        for i, params in enumerate(grid):
+            try:
+                fitted = self.fit(train, params, rng)
+            except Infeasible as exc:
+                self.note_skipped(exc.reason)
+                out[i] = np.nan
+                continue
+            if data.segments:
+                out[i] = np.concatenate(self.predict(fitted, data))
+        return out
+
+    def _with_skipped(self, described: dict[str, Any]) -> dict[str, Any]:
+        if self.skipped:
+            described["skipped"] = list(self.skipped)
+        return described
 
 
 def _summary(package: str, text: str) -> str:
@@ -134,6 +184,32 @@ def _whole_number(who: str, params: Params, key: str, low: int) -> int:
 
 
 # --------------------------------------------------------------------------- SysIdentPy
+def candidate_terms(degree: int, lags: int, n_inputs: int) -> int:
+    """FROLS's candidate set: every monomial up to ``degree`` of the lags x (1 + inputs) lagged signals, constant
+    included."""
+    return math.comb(lags * (1 + n_inputs) + degree, degree)
+
+
+def _prefix_information_criterion(self: Any, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """SysIdentPy's information criterion of the FROLS models with 1 .. n_info_values terms, from one regression.
+
+    FROLS picks terms greedily, so the model with i terms is the first i terms of the model with
+    n_info_values; SysIdentPy's own ``information_criterion`` reruns the regression for each i. Here
+    the terms are picked once and each prefix is estimated and scored as SysIdentPy does (its
+    estimator, its criterion function, the residual variance with ddof 1): the same values.
+    """
+    count = min(int(self.n_info_values), x.shape[1])  # SysIdentPy's own cap: no more terms than candidates
+    self.n_info_values = count
+    _, _, psi, target = self._unpack_mss_output(self.run_mss_algorithm(x, y, count), y)
+    n_samples = y.shape[0] - self.max_lag
+    values = np.full(count, np.nan)
+    for i in range(count):
+        columns = psi[:, :i + 1]
+        residual = target - columns @ self.estimator.optimize(columns, target)
+        values[i] = self.info_criteria_function(i + 1, n_samples, float(np.var(residual, ddof=1)))
+    return values
+
+
 @dataclass(frozen=True)
 class SysIdentPyFit:
     models: tuple[Any, ...]
@@ -151,19 +227,21 @@ class SysIdentPyNARX(PeerMethod):
 
     name = "sysidentpy-narx"
     package = "sysidentpy"
-    summary = _summary("sysidentpy", "peer: SysIdentPy polynomial NARX, FROLS structure selection (degree, lags "
-                                     "searched), least squares, free run")
+    summary = _summary("sysidentpy", "peer: SysIdentPy polynomial NARX, FROLS structure selection (degree 1-3, lags "
+                                     "up to 10 searched, terms by information criterion), least squares, free run")
 
     declared_options = Declaration(
         orders("degrees", (1, 2, 3), "polynomial degrees searched", low=1, searches=("degree",), edges="high",
                high=5, type_label="int in [1, 5] | list[int]", unit="",
                message="{name}={value} must list degrees from 1 to 5"),
-        orders("lags", None, "ylag = xlag: None = derived from {1, 2, 4} within what the data carry", low=1,
-               searches=("lags",), edges="high"),
+        orders("lags", None, "ylag = xlag: None = derived from {" + ", ".join(map(str, LAG_LADDER)) + "} within what "
+               "the data carry", low=1, searches=("lags",), edges="high"),
         whole("n_info_values", 30, "FROLS considers at most this many terms (the information criterion picks the "
               "count)", low=1),
         choice("info_criteria", "aic", "information criterion of FROLS's term count", INFO_CRITERIA,
                message="{name} must be one of " + ", ".join(INFO_CRITERIA) + ", got {value}"),
+        whole("max_candidates", 2000, "a (degree, lags) point with more FROLS candidate terms is skipped by the grid "
+              "(its regressor matrix is rows x candidates)", low=1, unit="terms"),
         ENVELOPE,
     )
 
@@ -173,8 +251,16 @@ class SysIdentPyNARX(PeerMethod):
         self._degrees = as_orders(self.options["degrees"])
 
     def search_space(self, data: Samples) -> SearchSpace:
+        """Degrees as given; lags as given or ``LAG_LADDER`` within what the data carry (the others noted)."""
+        self.skipped = []
         sizes = [len(s) for s in data.segments] or [0]
-        lags = self._lags or derived_orders(min(sizes), sum(sizes), len(data.input_names), 4, (1, 2, 4))
+        if self._lags:
+            lags = self._lags
+        else:
+            lags = derived_orders(min(sizes), sum(sizes), len(data.input_names), max(LAG_LADDER), LAG_LADDER)
+            for lag in sorted(set(LAG_LADDER) - set(lags)):
+                self.note_skipped(f"lags {lag} left out: a quarter of the shortest training segment ({min(sizes)} "
+                                  f"samples) or a tenth of the {sum(sizes)} training rows per parameter is less")
         return {"degree": np.array(self._degrees), "lags": np.array(lags)}
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> SysIdentPyFit:
@@ -189,19 +275,31 @@ class SysIdentPyNARX(PeerMethod):
         traj = training_trajectories(self.name, train)
         scaling = _Scaling.of(traj)
         U, Y = _whole(traj, scaling)
+        terms, cap = candidate_terms(degree, lags, U.shape[1]), int(self.options["max_candidates"])
+        if terms > cap:
+            raise Infeasible(self.name, f"degree {degree}, lags {lags} give {terms} candidate terms, over "
+                                        f"max_candidates = {cap}; raise max_candidates or use lower degrees or lags")
+        if len(U) - lags < 2:
+            raise Infeasible(self.name, f"lags {lags} leave fewer than 2 regression rows in {len(U)} training samples; "
+                                        "use lower lags")
         models = []
         for j in range(Y.shape[1]):
             model = FROLS(order_selection=True, n_info_values=int(self.options["n_info_values"]), ylag=lags,
                           xlag=[list(range(1, lags + 1))] * U.shape[1] if U.shape[1] > 1 else lags,
                           info_criteria=str(self.options["info_criteria"]), estimator=LeastSquares(),
                           basis_function=Polynomial(degree=degree), model_type="NARMAX")
+            # SysIdentPy's criterion, read off one regression (same values); the instance override is removed after
+            # fitting, so the model pickles and behaves as a plain FROLS
+            model.information_criterion = types.MethodType(_prefix_information_criterion, model)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     model.fit(X=U, y=Y[:, j:j + 1])
             except (ValueError, np.linalg.LinAlgError) as exc:
-                raise MethodError(f"method {self.name!r}: SysIdentPy could not fit degree {degree}, lags {lags}: "
-                                  f"{str(exc).splitlines()[0]}") from exc
+                raise Infeasible(self.name, f"SysIdentPy could not fit degree {degree}, lags {lags}: "
+                                            f"{str(exc).splitlines()[0]}") from exc
+            finally:
+                del model.information_criterion
             models.append(model)
         env = Envelope.around(np.vstack([t.Y for t in traj]), float(self.options["envelope"]))
         return SysIdentPyFit(tuple(models), degree, lags, scaling, env, tuple(train.input_names),
@@ -236,8 +334,10 @@ class SysIdentPyNARX(PeerMethod):
                                "units": "standardised signals (training mean and std)", "targets": {}}
         for name, model in zip(fitted.target_names, fitted.models):
             rows = results(model.final_model, model.theta, model.err, model.n_terms, err_precision=6, dtype="dec")
-            out["targets"][name] = {"terms": [[r[0], float(r[1])] for r in rows], "n_terms": len(rows)}
-        return out
+            out["targets"][name] = {"terms": [[r[0], float(r[1])] for r in rows], "n_terms": len(rows),
+                                    "info_criteria": str(self.options["info_criteria"]),
+                                    "info_values": [float(v) for v in np.asarray(model.info_values).reshape(-1)]}
+        return self._with_skipped(out)
 
 
 # --------------------------------------------------------------------------- N4SID (nfoursid)
@@ -289,11 +389,11 @@ class N4SID(PeerMethod):
     name = "n4sid"
     package = "nfoursid"
     summary = _summary("nfoursid", "peer: linear state-space model by subspace identification (nfoursid), order "
-                                   "searched, state estimated on the init window, free run")
+                                   "up to 32 searched, state estimated on the init window, free run")
 
     declared_options = Declaration(
-        orders("orders", None, "state orders searched: None = derived from {1, 2, 4, 8, 16} within what the data "
-               "carry", low=1, searches=("order",), edges="high"),
+        orders("orders", None, "state orders searched: None = {" + ", ".join(map(str, ORDER_LADDER)) + "} within what "
+               "the data carry (the others noted)", low=1, searches=("order",), edges="high"),
         whole("block_rows", None, "Hankel block rows: None = 1.5 x the order / outputs, at least 2", low=1,
               nullable=True),
         whole("max_samples", 5000, "samples handed to nfoursid (its full SVD forms an n x n factor)", low=10,
@@ -306,13 +406,41 @@ class N4SID(PeerMethod):
         self._orders = as_orders(self.options["orders"])
 
     def search_space(self, data: Samples) -> SearchSpace:
+        """Orders as given, or the ``ORDER_LADDER`` orders the data can carry (the others noted in ``skipped``)."""
+        self.skipped = []
+        if self._orders:
+            return {"order": np.array(self._orders)}
         sizes = [len(s) for s in data.segments] or [0]
-        orders = self._orders or derived_orders(min(sizes), sum(sizes), len(data.input_names), 16)
-        return {"order": np.array(orders)}
+        n = self._samples_used(sizes)
+        m, k = len(data.input_names), max(1, len(data.target_names))
+        kept = []
+        for order in ORDER_LADDER:
+            reason = self._infeasible(order, n, m, k)
+            if reason is None:
+                kept.append(order)
+            else:
+                self.note_skipped(f"order {order} left out: {reason}")
+        return {"order": np.array(kept or [min(ORDER_LADDER)])}
+
+    def _samples_used(self, sizes: Sequence[int]) -> int:
+        """How many samples ``_fit_orders`` hands nfoursid: all, or at most ``max_samples`` of the longest segment."""
+        cap = int(self.options["max_samples"])
+        return int(sum(sizes)) if sum(sizes) <= cap else min(max(sizes), cap)
 
     def _block_rows(self, order: int, k: int) -> int:
         br = self.options["block_rows"]
         return int(br) if br is not None else max(2, math.ceil(1.5 * order / k))
+
+    def _infeasible(self, order: int, n: int, m: int, k: int) -> str | None:
+        """Why ``n`` samples of ``m`` inputs and ``k`` outputs cannot carry ``order`` (None when they can)."""
+        br = self._block_rows(order, k)
+        if order > br * k:
+            return f"order {order} exceeds block_rows x outputs = {br * k}; raise block_rows"
+        need = 4 * br * (m + k)
+        if n < need:
+            return (f"{n} training samples are too few for the {br} Hankel block rows of order {order} (needs {need}); "
+                    "use lower orders")
+        return None
 
     def _identify(self, U: np.ndarray, Y: np.ndarray, block_rows: int):
         import pandas as pd
@@ -325,8 +453,8 @@ class N4SID(PeerMethod):
         sid.subspace_identification()
         return sid
 
-    def _fit_orders(self, train: Samples, orders: Sequence[int]) -> list[StateSpaceFit | MethodError]:
-        """A fit per order; an order the data cannot carry is its MethodError (a grid skips it, ``fit`` raises it)."""
+    def _fit_orders(self, train: Samples, orders: Sequence[int]) -> list[StateSpaceFit | Infeasible]:
+        """A fit per order; an order the data cannot carry is its ``Infeasible`` (grids skip it, ``fit`` raises it)."""
         self.check_mode(train.mode)
         traj = training_trajectories(self.name, train)
         scaling = _Scaling.of(traj)
@@ -337,16 +465,13 @@ class N4SID(PeerMethod):
             U, Y = _whole([Trajectory(longest.id, longest.U[:cap], longest.Y[:cap])], scaling)
         k = Y.shape[1]
         env = Envelope.around(np.vstack([t.Y for t in traj]), float(self.options["envelope"]))
-        fits, cache = [], {}
+        fits: list[StateSpaceFit | Infeasible] = []
+        cache: dict[int, Any] = {}
         for order in orders:
             br = self._block_rows(order, k)
-            if order > br * k:
-                fits.append(MethodError(f"method {self.name!r}: order {order} exceeds block_rows x outputs = {br * k}; "
-                                        "raise block_rows"))
-                continue
-            if len(U) < 4 * br * (U.shape[1] + k):
-                fits.append(MethodError(f"method {self.name!r}: {len(U)} training samples are too few for {br} Hankel "
-                                        "block rows; use lower orders"))
+            reason = self._infeasible(order, len(U), U.shape[1], k)
+            if reason is not None:
+                fits.append(Infeasible(self.name, reason))
                 continue
             try:
                 if br not in cache:
@@ -354,18 +479,22 @@ class N4SID(PeerMethod):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     ss, _ = cache[br].system_identification(rank=order)
-            except (ValueError, np.linalg.LinAlgError) as exc:
-                fits.append(MethodError(f"method {self.name!r}: nfoursid could not identify order {order}: "
-                                        f"{str(exc).splitlines()[0]}"))
+                mats = [np.array(mat, dtype=np.float64, order="C") for mat in (ss.a, ss.b, ss.c, ss.d)]  # pickle-stable
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+                fits.append(Infeasible(self.name, f"nfoursid could not identify order {order}: "
+                                                  f"{str(exc).splitlines()[0]}; use lower orders"))
                 continue
-            mats = (np.array(mat, dtype=np.float64, order="C") for mat in (ss.a, ss.b, ss.c, ss.d))  # pickle-stable
+            if mats[0].shape != (order, order) or not all(np.isfinite(mat).all() for mat in mats):
+                fits.append(Infeasible(self.name, f"nfoursid's order-{order} model is singular (A {mats[0].shape}, "
+                                                  "non-finite or short of the order); use lower orders"))
+                continue
             fits.append(StateSpaceFit(*mats, order, br, scaling, env, tuple(train.input_names), tuple(train.target_names)))
         return fits
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> StateSpaceFit:
         """Subspace identification on the concatenated standardised training segments. ``rng`` is not drawn from."""
         (fitted,) = self._fit_orders(train, [_whole_number(self.name, params, "order", 1)])
-        if isinstance(fitted, MethodError):
+        if isinstance(fitted, Infeasible):
             raise fitted
         return fitted
 
@@ -389,7 +518,8 @@ class N4SID(PeerMethod):
         out = np.empty((len(grid), len(data), len(train.target_names)))
         fits = self._fit_orders(train, [_whole_number(self.name, p, "order", 1) for p in grid])
         for i, fitted in enumerate(fits):
-            if isinstance(fitted, MethodError):
+            if isinstance(fitted, Infeasible):
+                self.note_skipped(fitted.reason)
                 out[i] = np.nan
             elif data.segments:
                 out[i] = np.concatenate(self.predict(fitted, data))
@@ -398,10 +528,10 @@ class N4SID(PeerMethod):
     def describe(self, fitted: StateSpaceFit) -> dict[str, Any]:
         poles = np.linalg.eigvals(fitted.A)
         radius = float(np.abs(poles).max()) if poles.size else 0.0
-        return {
+        return self._with_skipped({
             "order": fitted.order, "block_rows": fitted.block_rows, "package": "nfoursid",
             "poles": [[float(p.real), float(p.imag)] for p in poles],
             "max_pole_modulus": radius, "stable": bool(radius < 1.0),
             "A": fitted.A.tolist(), "B": fitted.B.tolist(), "C": fitted.C.tolist(), "D": fitted.D.tolist(),
             "units": "standardised signals (training mean and std)",
-        }
+        })

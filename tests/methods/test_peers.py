@@ -4,6 +4,7 @@ no measured output after it, and the one-line refusal when the optional extra is
 from __future__ import annotations
 
 import importlib.util
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -137,3 +138,139 @@ def test_bad_peer_options_are_one_line():
         SysIdentPyNARX(degrees=(0, 2))
     with pytest.raises(MethodError, match="option block_rows must be a whole number >= 1"):
         N4SID(block_rows=0)
+
+
+# -- the peers' grids (issue 30: search what the peers' own documentation searches) --------------
+@needs_sysidentpy
+def test_sysidentpy_narx_searches_degrees_1_to_3_and_lags_up_to_10_where_the_data_carry_them(data):
+    train, _ = data  # 3 records of 300 samples, 2 inputs
+    m = SysIdentPyNARX()
+    space = m.search_space(train)
+    assert list(space["degree"]) == [1, 2, 3]
+    assert list(space["lags"]) == list(peers.LAG_LADDER) and max(space["lags"]) == 10
+    assert m.skipped == []
+    short = sim_samples(linear_raw(2, 40))  # 80 rows: a tenth is 8, so only lags 1 and 2 (3 x 2 + 1 parameters)
+    space = m.search_space(short)
+    assert list(space["lags"]) == [1, 2]
+    assert [r.split(":")[0] for r in m.skipped] == ["lags 4 left out", "lags 6 left out", "lags 8 left out",
+                                                    "lags 10 left out"]
+    assert "shortest training segment (40 samples)" in m.skipped[0]
+
+
+@needs_sysidentpy
+@pytest.mark.parametrize("criterion", ["aic", "bic"])
+def test_the_information_criterion_read_off_one_regression_equals_sysidentpys_own(data, criterion):
+    from sysidentpy.basis_function import Polynomial
+    from sysidentpy.model_structure_selection import FROLS
+    from sysidentpy.parameter_estimation import LeastSquares
+
+    train, _ = data
+    U = np.vstack([s.U for s in train.segments])
+    y = np.vstack([s.y for s in train.segments])
+    U, y = (U - U.mean(0)) / U.std(0), (y - y.mean()) / y.std()
+    y = y + 0.05 * np.random.default_rng(1).normal(size=y.shape)  # noisy, so the criterion has a minimum inside
+
+    def frols():
+        return FROLS(order_selection=True, n_info_values=12, ylag=3, xlag=[[1, 2, 3]] * 2, info_criteria=criterion,
+                     estimator=LeastSquares(), basis_function=Polynomial(degree=2), model_type="NARMAX")
+
+    stock, fast = frols(), frols()
+    fast.information_criterion = peers.types.MethodType(peers._prefix_information_criterion, fast)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stock.fit(X=U, y=y)
+        fast.fit(X=U, y=y)
+    np.testing.assert_allclose(fast.info_values, stock.info_values, rtol=1e-10)
+    assert fast.n_terms == stock.n_terms
+    np.testing.assert_array_equal(fast.final_model, stock.final_model)
+    np.testing.assert_allclose(fast.theta, stock.theta, rtol=1e-9, atol=1e-12)
+
+
+@needs_sysidentpy
+def test_a_point_over_max_candidates_is_skipped_by_the_grid_noted_and_refused_by_fit(data):
+    train, test = data  # 2 inputs: degree 2, lags 2 give C(8, 2) = 28 candidates, degree 1 lags 2 give 7
+    assert peers.candidate_terms(2, 2, 2) == 28 and peers.candidate_terms(1, 2, 2) == 7
+    assert peers.candidate_terms(3, 10, 1) == 1771  # Silverbox (one input) at the widest default point
+    m = SysIdentPyNARX(max_candidates=20, n_info_values=8)
+    m.search_space(train)
+    grid = [{"degree": 1, "lags": 2}, {"degree": 2, "lags": 2}]
+    out = m.predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert np.isfinite(out[0]).all() and np.isnan(out[1]).all()
+    reason = "degree 2, lags 2 give 28 candidate terms, over max_candidates = 20; raise max_candidates or use lower " \
+             "degrees or lags"
+    assert m.skipped == [reason]
+    fit = m.fit(train, grid[0], np.random.default_rng(0))
+    assert m.describe(fit)["skipped"] == [reason]
+    with pytest.raises(MethodError, match=r"^method 'sysidentpy-narx': degree 2, lags 2 give 28 candidate terms"):
+        m.fit(train, grid[1], np.random.default_rng(0))
+
+
+@needs_nfoursid
+def test_n4sid_searches_orders_up_to_32_where_the_data_carry_them_and_notes_the_others(data):
+    train, _ = data  # 900 samples, 2 inputs, 1 output: order 32 takes 48 block rows, 4 x 48 x 3 = 576 samples
+    m = N4SID()
+    space = m.search_space(train)
+    assert list(space["order"]) == list(peers.ORDER_LADDER) and max(space["order"]) == 32
+    assert m.skipped == []
+    short = sim_samples(linear_raw(1, 300))  # order 16 needs 4 x 24 x 3 = 288 samples, 24 needs 432
+    space = m.search_space(short)
+    assert max(space["order"]) == 16 and 24 not in space["order"]
+    assert m.skipped == [
+        "order 24 left out: 300 training samples are too few for the 36 Hankel block rows of order 24 (needs 432); "
+        "use lower orders",
+        "order 32 left out: 300 training samples are too few for the 48 Hankel block rows of order 32 (needs 576); "
+        "use lower orders"]
+    fit = m.fit(short, {"order": 2}, np.random.default_rng(0))
+    assert m.describe(fit)["skipped"] == m.skipped
+
+
+@needs_nfoursid
+def test_a_failed_n4sid_decomposition_skips_that_order_with_its_reason(data, monkeypatch):
+    from nfoursid.nfoursid import NFourSID
+
+    train, test = data
+    real = NFourSID.system_identification
+
+    def fails_at_3(self, rank, *args, **kwargs):
+        if rank == 3:
+            raise np.linalg.LinAlgError("SVD did not converge")
+        return real(self, rank, *args, **kwargs)
+
+    monkeypatch.setattr(NFourSID, "system_identification", fails_at_3)
+    m = N4SID()
+    m.search_space(train)
+    grid = [{"order": 2}, {"order": 3}, {"order": 4}]
+    out = m.predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
+    assert np.isfinite(out[[0, 2]]).all() and np.isnan(out[1]).all()
+    assert m.skipped == ["nfoursid could not identify order 3: SVD did not converge; use lower orders"]
+
+
+@needs_nfoursid
+def test_an_infeasible_n4sid_order_is_skipped_without_failing_the_job(tmp_path):
+    import pandas as pd
+
+    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+    from enginebench.datasets.io import write_dataset
+    from enginebench.datasets.schema import Column, Schema
+    from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.spec import from_dict
+    from enginebench.results.store import RunStore
+
+    rng = np.random.default_rng(0)
+    frames = []
+    for name, n in (("est", 400), ("val", 300)):
+        u = rng.normal(size=n)
+        y = scipy.signal.lfilter([0.0, 0.5], [1.0, -0.8], u) + 1.0
+        frames.append(pd.DataFrame({SEGMENT: name, TIME: np.arange(n) * 0.01, "u": u, "y": y}))
+    ds = Dataset("recs", pd.concat(frames, ignore_index=True),
+                 Schema((Column("u", "input", "V"), Column("y", "output", "V"))), 0.01, {"provenance": "test"})
+    path = write_dataset(ds, tmp_path / "recs.parquet")
+    spec = from_dict({"name": "n4sid-skip", "dataset": str(path), "targets": ["y"], "mode": "simulation",
+                      "repetitions": 1, "train_size": 0, "init_samples": 10,
+                      "split": {"kind": "records", "train": ["est"], "test": ["val"]},
+                      "selection": {"kind": "kfold", "folds": 2, "criterion": "rmse"},
+                      "methods": {"n4sid": {"orders": [2, 40]}}}, origin="test")
+    run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+    meta = run.job_meta(run.job_files()[0].stem)
+    assert meta["status"] == "ok" and int(meta["params"]["order"]) == 2
+    assert any("too few for the 60 Hankel block rows of order 40" in r for r in meta["describe"]["skipped"])
