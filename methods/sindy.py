@@ -53,18 +53,24 @@ from enginebench.declare import Declaration, Field, Invalid, choice, listing, po
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.numerics.derivatives import digest
+from enginebench.methods.sindy_grid import segment_derivative, simulate_candidates
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
     DERIVATIVE_KINDS, DERIVATIVE_SOLVERS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
 )
 
 DEFAULT_DERIVATIVE_ALPHA = {"trend_filtered": 1e-3, "kalman": 1.0}
-DEFAULT_PARAMS = {"degree": 2, "threshold": 0.1, "alpha": 0.05}
+DEFAULT_PARAMS = {"order": 1, "degree": 2, "threshold": 0.1, "alpha": 0.05}
+ORDERS = (1, 2)
+"""Model orders: dy/dt = Theta(y, u) xi, or d2y/dt2 = Theta(y, dy/dt, u) xi with the state (y, dy/dt)."""
 THRESHOLD_SCALES = ("relative", "absolute")
+DERIVATIVE_SCALES = ("segment", "training")
+"""What ``derivative_alpha`` is relative to: each segment's own standard deviation (its derivative then
+depends on the segment alone and is computed once per process), or the training set's (before)."""
 DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
 """Default STLSQ threshold grids: relative to each derivative's rms, or seed 003's absolute range."""
 MIN_ROWS = 4
 _PREPARE_OPTIONS = ("derivative", "derivative_solver", "derivative_chunk", "derivative_margin", "derivative_max_iter",
-                    "time_scale", "envelope")
+                    "derivative_scale", "time_scale", "envelope")
 """The options ``SINDy._prepare``'s result depends on (with ``derivative_alpha``): its cache key."""
 PREPARED_CACHE_SIZE = 2
 """Prepared training sets ``SINDy._prepare`` keeps per process (least recently used dropped first)."""
@@ -81,6 +87,12 @@ def _degrees(value: Any) -> Any:
     for d in value:
         if not (float(d).is_integer() and 1 <= d <= 5):
             raise Invalid("{name}: polynomial degree must be an integer from 1 to 5, got " + repr(d))
+    return value
+
+
+def _orders(value: Any) -> Any:
+    if not len(value) or any(not float(o).is_integer() or int(o) not in ORDERS for o in value):
+        raise Invalid("{name} must list model orders from 1 (dy/dt) and 2 (d2y/dt2), got {value}")
     return value
 
 
@@ -137,10 +149,21 @@ class SINDyFit(Scaling):
     """Root mean square of each state's standardised derivative."""
     threshold_unit: np.ndarray | None = None
     """What the threshold multiplied, per equation: 1 (absolute) or ``threshold_unit(...)`` (relative)."""
+    order: int = 1
+    """1: the states are the targets; 2: the targets then their time derivatives (``state_names`` end in ')."""
 
     @property
     def n_states(self) -> int:
         return self.coef.shape[0]
+
+    @property
+    def n_targets(self) -> int:
+        return self.n_states // self.order
+
+    @property
+    def learned(self) -> range:
+        """The rows of ``coef`` that STLSQ identified (order 2: the d(y')/dt rows; d(y)/dt = y' is kinematic)."""
+        return range(self.n_states - self.n_targets, self.n_states)
 
 
 @dataclass
@@ -153,9 +176,36 @@ class _Prepared(Scaling):
     x_dot: list[np.ndarray]
     notes: list[str]
     derivative_rms: np.ndarray
+    dt: list[float] = field(default_factory=list)
+    """Each segment's sample period (s)."""
+    raw_dot: list[np.ndarray] | None = None
+    """``derivative_scale = "segment"``: each segment's kept derivative in raw units per second."""
+    memo: dict[Any, Any] = field(default_factory=dict)
+    """Results derived on demand and shared by every fit of this preparation (second order, threshold units)."""
 
 
-def threshold_unit(prep: "_Prepared", degree: int, alpha: float) -> np.ndarray:
+@dataclass
+class _SecondOrder:
+    """The second-order system of a preparation: states (x, w) with w the standardised dx/dt, and d/dt of both.
+
+    ``w = (dx/dt - w_mean) / w_std`` (dx/dt in standardised units per ``time_scale``); the
+    scaling fields hold both states' means and deviations in raw units (the derivative's
+    per second) and the envelope of (x, w), as ``SINDyFit`` keeps them.
+    """
+
+    z: list[np.ndarray]
+    z_dot: list[np.ndarray]
+    w_mean: np.ndarray
+    w_std: np.ndarray
+    state_mean: np.ndarray
+    state_std: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    rms: np.ndarray
+    notes: list[str]
+
+
+def threshold_unit(prep: "_Prepared", degree: int, alpha: float, order: int = 1) -> np.ndarray:
     """Per equation, what a relative threshold multiplies: min(rms of dx_k/dt, largest first-pass coefficient).
 
     The first pass is STLSQ's own first step, the ridge fit (``alpha``) of dx_k/dt on the
@@ -163,14 +213,27 @@ def threshold_unit(prep: "_Prepared", degree: int, alpha: float) -> np.ndarray:
     for every threshold below 1, so a relative grid below 1 does not empty an equation
     whose library explains little of its derivative (the rms alone would).
     """
-    z = [x if u is None else np.hstack([x, u]) for x, u in zip(prep.x, prep.u or [None] * len(prep.x))]
+    key = ("unit", int(order), int(degree), float(alpha))
+    if key in prep.memo:
+        return prep.memo[key]
+    states, targets, rms = _system(prep, order)
+    z = [x if u is None else np.hstack([x, u]) for x, u in zip(states, prep.u or [None] * len(states))]
     z = np.vstack(z)
     powers = ps.PolynomialLibrary(degree=int(degree)).fit(z[:1]).powers_
     theta = library_features(z, np.asarray(powers, dtype=np.int64))
-    first = ridge_regression(theta, np.concatenate(prep.x_dot), float(alpha))
+    first = ridge_regression(theta, np.concatenate(targets), float(alpha))
     largest = np.abs(np.atleast_2d(first)).max(axis=1)
-    rms = prep.derivative_rms
-    return np.where(np.isfinite(largest) & (largest > 0), np.minimum(rms, largest), rms)
+    unit = np.where(np.isfinite(largest) & (largest > 0), np.minimum(rms, largest), rms)
+    prep.memo[key] = unit
+    return unit
+
+
+def _system(prep: "_Prepared", order: int) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """(states, their derivatives, rms of each derivative) per training segment of the order's model."""
+    if order == 1:
+        return prep.x, prep.x_dot, prep.derivative_rms
+    second = prep.memo["second"]
+    return second.z, second.z_dot, second.rms
 
 
 def initial_state(segment: Any) -> tuple[int, np.ndarray | None]:
@@ -186,12 +249,18 @@ def initial_state(segment: Any) -> tuple[int, np.ndarray | None]:
     return 0, None if segment.y0 is None else np.asarray(segment.y0, dtype=np.float64)
 
 
+def constant_states(fitted: "SINDyFit") -> list[str]:
+    """The states whose identified equation lost every term (order 2: their derivative is held)."""
+    return [fitted.state_names[i] for i in fitted.learned if not np.any(fitted.coef[i])]
+
+
 def constant_state_warnings(fitted: "SINDyFit") -> list[str]:
     """One line per state whose every term was thresholded away (the job's warnings)."""
+    held = "its initial value held, a flat line" if fitted.order == 1 else "a constant rate (a straight line)"
     return [
         f"every term of d({n})/dt was thresholded away (threshold {fitted.params['threshold']:g}, "
-        f"{fitted.threshold_scale}): {n} is simulated as its initial value held, a flat line; lower the threshold"
-        for n, row in zip(fitted.state_names, fitted.coef) if not np.any(row)
+        f"{fitted.threshold_scale}): {n} is simulated as {held}; lower the threshold"
+        for n in constant_states(fitted)
     ]
 
 
@@ -210,6 +279,8 @@ class SINDy(Method):
     summary = "pysindy polynomial ODE with control inputs, STLSQ, batched open-loop simulation"
 
     declared_options = Declaration(
+        listing("orders", ORDERS, "model orders searched: 1 (dy/dt = Theta(y, u) xi) and 2 (d2y/dt2 = "
+                "Theta(y, dy/dt, u) xi, which can oscillate)", items="float", searches=("order",), check=_orders),
         listing("degrees", (1, 2, 3), "polynomial degrees of the library searched", items="float", searches=("degree",),
                 edges="high", check=_degrees),
         choice("threshold_scale", "relative", "STLSQ thresholds relative to the rms of each state's derivative, or "
@@ -229,6 +300,9 @@ class SINDy(Method):
                "derivative package's Lasso (stops at derivative_max_iter short of the optimum; earlier results)",
                DERIVATIVE_SOLVERS),
         whole("derivative_max_iter", 20000, "iteration cap of the trend-filtered derivative's solver", low=1),
+        choice("derivative_scale", "segment", "derivative_alpha relative to each segment's own standard deviation "
+               "(each record differentiated once per process, shared by k-fold fits) or the training set's (earlier "
+               "results)", DERIVATIVE_SCALES),
         positive("time_scale", 1.0, "time unit of the identified ODE (the derivative is per time_scale seconds)",
                  unit="s"),
         choice("integrator", "rk4", "open-loop simulation's integration scheme", INTEGRATORS),
@@ -257,9 +331,10 @@ class SINDy(Method):
 
     # -- protocol ----------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:
-        """Degree x STLSQ threshold (log grid, relative by default) x ridge alpha (log grid)."""
+        """Order x degree x STLSQ threshold (log grid, relative by default) x ridge alpha (log grid)."""
         o = self.options
         return {
+            "order": np.array(sorted({int(k) for k in o["orders"]})),
             "degree": np.array([int(d) for d in o["degrees"]]),
             "threshold": log_grid(*np.log10(self.threshold_range), o["n_thresholds"]),
             "alpha": log_grid(*np.log10(o["alpha_range"]), o["n_alphas"]),
@@ -279,26 +354,35 @@ class SINDy(Method):
         self._check_signals(fitted, data)
         if not data.segments:
             return SegmentPredictions([], [])
-        x0, controls, times, starts = [], [], [], []
-        for s in data.segments:
-            start, y_start = initial_state(s)
-            if y_start is None or not np.all(np.isfinite(y_start)):
-                where = "y0" if start == 0 else f"y_init (row {start})"
-                raise MethodError(
-                    f"sindy: segment {s.id!r} has no finite initial output {where}; simulation starts from the "
-                    "measured outputs of the segment's first row or initialisation window"
-                )
-            starts.append(start)
-            x0.append((np.asarray(y_start, dtype=np.float64).reshape(-1) - fitted.state_mean) / fitted.state_std)
-            controls.append((s.U[start:] - fitted.control_mean) / fitted.control_std)
-            times.append(s.t[start:] / fitted.time_scale)
-        trajs, diverged = simulate_batch(
-            fitted.coef, fitted.powers, np.vstack(x0), controls, times, fitted.lower, fitted.upper,
-            integrator=self.options["integrator"], substeps=int(self.options["substeps"]),
-        )
-        arrays = [(tr * fitted.state_std + fitted.state_mean)[np.asarray(s.rows) - a]
-                  for tr, s, a in zip(trajs, data.segments, starts)]
-        return SegmentPredictions(arrays, diverged)
+        trajs, diverged = self._simulate([fitted], data)
+        return SegmentPredictions(trajs[0], diverged[0])
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Every grid point's free runs in one time loop per model order (``sindy_grid.simulate_candidates``):
+        the same numbers as ``predict`` of each model of ``fit_grid``, model by model."""
+        self.check_mode(data.mode)
+        fits: list[SINDyFit | None] = [None] * len(grid)
+        for i, fitted in self.fit_grid(train, grid, rng):
+            fits[i] = fitted
+        self.check_grid_covered([f is not None for f in fits])
+        out = np.empty((len(grid), len(data), len(train.target_names)))
+        if not data.segments:
+            return out
+        groups: dict[tuple[int, int], list[int]] = {}
+        for i, f in enumerate(fits):
+            self._check_signals(f, data)
+            groups.setdefault((f.order, id(f.lower)), []).append(i)
+        for idx in groups.values():
+            trajs, _ = self._simulate([fits[i] for i in idx], data)
+            for i, arrays in zip(idx, trajs):
+                out[i] = np.concatenate(arrays)
+        return out
+
+    def keeps_grid_models(self) -> bool:
+        """``predict_grid`` predicts exactly the models of ``fit_grid`` (the same arithmetic as ``predict``)."""
+        return True
 
     def fit_grid(
         self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
@@ -321,11 +405,13 @@ class SINDy(Method):
             "equations_units": "standardised signals (z-scores with training mean/std); time in units of "
             f"{fitted.time_scale:g} s",
             "equations_raw": [f"{l} = {_format_terms(row, raw_names)}" for l, row in zip(lhs, raw)],
-            "term_count": int(np.count_nonzero(fitted.coef)),
+            # identified terms (order 2: of the d(y')/dt equations; d(y)/dt = y' is kinematic)
+            "term_count": int(np.count_nonzero(fitted.coef[fitted.learned.start:])),
             "terms_per_equation": [int(c) for c in np.count_nonzero(fitted.coef, axis=1)],
             # states whose equation lost every term: dx/dt = 0, simulated as their initial value held
-            "constant_states": [n for n, row in zip(fitted.state_names, fitted.coef) if not np.any(row)],
+            "constant_states": constant_states(fitted),
             "library_size": int(fitted.powers.shape[0]),
+            "order": int(fitted.order),
             "degree": int(fitted.params["degree"]),
             "threshold": float(fitted.params["threshold"]),
             "threshold_scale": fitted.threshold_scale,
@@ -351,10 +437,77 @@ class SINDy(Method):
         }
 
     # -- internals ---------------------------------------------------------------
+    def _derivative_settings(self) -> dict[str, Any]:
+        """``sindy_library.differentiate``'s keywords from the options."""
+        o = self.options
+        return {"kind": o["derivative"], "alpha": self.derivative_alpha, "chunk": int(o["derivative_chunk"]),
+                "margin": int(o["derivative_margin"]), "max_iter": int(o["derivative_max_iter"]),
+                "solver": o["derivative_solver"]}
+
+    def _simulate(self, fits: Sequence[SINDyFit], data: Samples) -> tuple[list[list[np.ndarray]], np.ndarray]:
+        """Free runs (targets only, at each segment's rows) and diverged flags (C, S) of models that share one
+        preparation (order, standardisation, envelope), every model and segment in one time loop."""
+        first = fits[0]
+        k = first.n_targets
+        starts, controls, times = [], [], []
+        for s in data.segments:
+            start, y_start = initial_state(s)
+            if y_start is None or not np.all(np.isfinite(y_start)):
+                where = "y0" if start == 0 else f"y_init (row {start})"
+                raise MethodError(
+                    f"sindy: segment {s.id!r} has no finite initial output {where}; simulation starts from the "
+                    "measured outputs of the segment's first row or initialisation window"
+                )
+            starts.append(start)
+            controls.append((s.U[start:] - first.control_mean) / first.control_std)
+            times.append(s.t[start:] / first.time_scale)
+        shared: dict[int, np.ndarray] = {}
+        x0 = []
+        for f in fits:
+            if id(f.state_mean) not in shared:
+                shared[id(f.state_mean)] = self._initial_states(f, data, starts)
+            x0.append(shared[id(f.state_mean)])
+        traj, _, diverged = simulate_candidates(
+            [f.coef for f in fits], [f.powers for f in fits], np.stack(x0), controls, times, first.lower, first.upper,
+            integrator=self.options["integrator"], substeps=int(self.options["substeps"]),
+        )
+        arrays = [[(traj[c, j, :, :k] * f.state_std[:k] + f.state_mean[:k])[np.asarray(s.rows) - a]
+                   for j, (s, a) in enumerate(zip(data.segments, starts))] for c, f in enumerate(fits)]
+        return arrays, diverged
+
+    def _initial_states(self, fitted: SINDyFit, data: Samples, starts: Sequence[int]) -> np.ndarray:
+        """Standardised initial states (S, n_states): the measured output at each start row and, for a
+        second-order model, its derivative there, estimated from the initialisation window as in training
+        (a window of 2 samples: their difference; of 1: 0)."""
+        k = fitted.n_targets
+        out = np.empty((len(data.segments), fitted.n_states))
+        for j, (s, start) in enumerate(zip(data.segments, starts)):
+            window = (np.asarray(s.y_init, dtype=np.float64).reshape(-1, k)[: start + 1] if start > 0
+                      else np.asarray(s.y0, dtype=np.float64).reshape(1, k))
+            out[j, :k] = (window[-1] - fitted.state_mean[:k]) / fitted.state_std[:k]
+            if fitted.order == 1:
+                continue
+            dt = float(s.t[1] - s.t[0]) if len(s.t) > 1 else 1.0
+            if len(window) >= 3:
+                if self.options["derivative_scale"] == "segment":
+                    v = segment_derivative(window, dt, self._derivative_settings())[0][-1]
+                else:
+                    x = (window - fitted.state_mean[:k]) / fitted.state_std[:k]
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        d = differentiate(x, dt / fitted.time_scale, **self._derivative_settings())
+                    v = d[-1] * fitted.state_std[:k] / fitted.time_scale
+            elif len(window) == 2:
+                v = (window[1] - window[0]) / dt
+            else:
+                v = np.zeros(k)
+            out[j, k:] = (v - fitted.state_mean[k:]) / fitted.state_std[k:]
+        return out
+
     def _check_signals(self, fitted: SINDyFit, data: Samples) -> None:
-        if tuple(data.target_names) != fitted.state_names or tuple(data.input_names) != fitted.control_names:
+        if tuple(data.target_names) != fitted.state_names[: fitted.n_targets] or tuple(data.input_names) != fitted.control_names:
             raise MethodError(
-                f"sindy: model was fitted for targets {list(fitted.state_names)} with inputs "
+                f"sindy: model was fitted for targets {list(fitted.state_names[: fitted.n_targets])} with inputs "
                 f"{list(fitted.control_names)}, but the data has targets {list(data.target_names)} with inputs "
                 f"{list(data.input_names)}; predict with samples built for the same columns"
             )
@@ -367,6 +520,11 @@ class SINDy(Method):
             )
         p = {**DEFAULT_PARAMS, **params}
         p["degree"] = self._check_degree(p["degree"], "parameter degree")
+        order = p["order"]
+        if isinstance(order, (bool, np.bool_)) or not (isinstance(order, (int, np.integer, float, np.floating))
+                                                        and float(order) in ORDERS):
+            raise MethodError(f"sindy: parameter order must be 1 (dy/dt) or 2 (d2y/dt2), got {order!r}")
+        p["order"] = int(order)
         for key in ("threshold", "alpha"):
             if not (np.isfinite(p[key]) and p[key] >= 0):
                 raise MethodError(f"sindy: parameter {key} must be a finite number >= 0, got {p[key]!r}")
@@ -392,7 +550,7 @@ class SINDy(Method):
             return _prepared[key]
         prep = self._prepare_uncached(train)
         for a in (*prep.x, *(prep.u or []), *prep.t, *prep.x_dot):
-            a.flags.writeable = False
+            a.flags.writeable = False  # (raw_dot's arrays are the per-segment cache's, read-only already)
         _prepared[key] = prep
         while len(_prepared) > PREPARED_CACHE_SIZE:
             _prepared.popitem(last=False)
@@ -426,7 +584,9 @@ class SINDy(Method):
                     "standardised; drop them from the experiment's inputs/targets"
                 )
         ts = float(self.options["time_scale"])
-        xs, us, tt, xd = [], [], [], []
+        xs, us, tt, xd, dts, raw = [], [], [], [], [], []
+        by_segment = self.options["derivative_scale"] == "segment"
+        n_kept = 0
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             for s, rows in segs:
@@ -443,14 +603,17 @@ class SINDy(Method):
                 xs.append(x)
                 us.append((s.U[rows] - u_mean) / u_std)
                 tt.append(t / ts)
-                xd.append(differentiate(
-                    x, dt / ts, kind=self.options["derivative"], alpha=self.derivative_alpha,
-                    chunk=int(self.options["derivative_chunk"]), margin=int(self.options["derivative_margin"]),
-                    max_iter=int(self.options["derivative_max_iter"]), solver=self.options["derivative_solver"],
-                ))
+                dts.append(float(dt))
+                if by_segment:
+                    d_raw, bad = segment_derivative(s.y, float(dt), self._derivative_settings())
+                    raw.append(d_raw)
+                    n_kept += bad
+                    xd.append(d_raw * (ts / x_std))
+                else:
+                    xd.append(differentiate(x, dt / ts, **self._derivative_settings()))
         xd_all = np.concatenate(xd)
         rms = np.sqrt(np.mean(xd_all ** 2, axis=0))
-        n_conv = sum("converge" in str(w.message) for w in caught)
+        n_conv = n_kept + sum("converge" in str(w.message) for w in caught)
         if n_conv:
             notes.append(f"differentiation: {n_conv} chunk(s) did not fully converge (derivative_max_iter)")
         span = y_all.max(axis=0) - y_all.min(axis=0)
@@ -460,41 +623,99 @@ class SINDy(Method):
         return _Prepared(
             x=xs, u=us if len(train.input_names) else None, t=tt, x_dot=xd, state_mean=x_mean, state_std=x_std,
             control_mean=u_mean, control_std=u_std, lower=lower, upper=upper, notes=notes,
-            derivative_rms=np.where(np.isfinite(rms) & (rms > 0), rms, 1.0),
+            derivative_rms=np.where(np.isfinite(rms) & (rms > 0), rms, 1.0), dt=dts,
+            raw_dot=raw if by_segment else None,
         )
+
+    def _second_order(self, prep: _Prepared) -> _SecondOrder:
+        """The preparation's second-order system, built once: w (standardised dx/dt) and its derivative, by the
+        same differentiation as dx/dt (per segment, cached, with ``derivative_scale = "segment"``)."""
+        if "second" in prep.memo:
+            return prep.memo["second"]
+        ts = float(self.options["time_scale"])
+        v_all = np.concatenate(prep.x_dot)
+        w_mean, w_std = v_all.mean(axis=0), v_all.std(axis=0)
+        w_std = np.where(np.isfinite(w_std) & (w_std > 0), w_std, 1.0)
+        ws = [(v - w_mean) / w_std for v in prep.x_dot]
+        wd, n_conv = [], 0
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for j, w in enumerate(ws):
+                if prep.raw_dot is not None:
+                    d2, bad = segment_derivative(prep.raw_dot[j], prep.dt[j], self._derivative_settings())
+                    n_conv += bad
+                    wd.append(d2 * (ts * ts / prep.state_std / w_std))
+                else:
+                    wd.append(differentiate(w, prep.dt[j] / ts, **self._derivative_settings()))
+        n_conv += sum("converge" in str(w.message) for w in caught)
+        w_all = np.concatenate(ws)
+        lo, hi = w_all.min(axis=0), w_all.max(axis=0)
+        env = float(self.options["envelope"])
+        rms = np.sqrt(np.mean(np.concatenate(wd) ** 2, axis=0))
+        second = _SecondOrder(
+            z=[np.hstack([x, w]) for x, w in zip(prep.x, ws)], z_dot=[np.hstack([a, b]) for a, b in zip(prep.x_dot, wd)],
+            w_mean=w_mean, w_std=w_std, state_mean=np.r_[prep.state_mean, w_mean * prep.state_std / ts],
+            state_std=np.r_[prep.state_std, w_std * prep.state_std / ts],
+            lower=np.r_[prep.lower, lo - env * (hi - lo)], upper=np.r_[prep.upper, hi + env * (hi - lo)],
+            rms=np.r_[prep.derivative_rms, np.where(np.isfinite(rms) & (rms > 0), rms, 1.0)],
+            notes=[f"second derivatives: {n_conv} chunk(s) did not fully converge (derivative_max_iter)"] if n_conv else [],
+        )
+        for a in (*second.z, *second.z_dot):
+            a.flags.writeable = False
+        prep.memo["second"] = second
+        return second
 
     def _fit_prepared(self, prep: _Prepared, train: Samples, params: Params) -> SINDyFit:
         p = self._params(params)
+        order = p["order"]
         model = ps.SINDy(
             optimizer=ps.STLSQ(threshold=p["threshold"], alpha=p["alpha"]),
             feature_library=ps.PolynomialLibrary(degree=p["degree"]),
         )
-        names = list(train.target_names) + list(train.input_names)
-        notes = list(prep.notes)
+        k = len(train.target_names)
+        second = self._second_order(prep) if order == 2 else None
+        states, targets, rms = _system(prep, order)
+        state_names = list(train.target_names) + ([f"{n}'" for n in train.target_names] if second else [])
+        names = state_names + list(train.input_names)
+        notes = list(prep.notes) + (second.notes if second else [])
         relative = self.options["threshold_scale"] == "relative"
         # relative: STLSQ on each derivative over its unit, so one threshold cuts equation k at threshold x unit_k
-        unit = threshold_unit(prep, p["degree"], p["alpha"]) if relative else np.ones_like(prep.derivative_rms)
-        x_dot = [xd / unit for xd in prep.x_dot] if relative else prep.x_dot
+        unit = threshold_unit(prep, p["degree"], p["alpha"], order) if relative else np.ones_like(rms)
+        x_dot = [xd / unit for xd in targets] if relative else targets
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            model.fit(prep.x, t=prep.t, x_dot=x_dot, u=prep.u, feature_names=names)
+            model.fit(states, t=prep.t, x_dot=x_dot, u=prep.u, feature_names=names)
         notes += sorted({str(w.message) for w in caught})
         if relative:
             model.optimizer.coef_ = np.asarray(model.optimizer.coef_, dtype=np.float64) * unit[:, None]
         coef = np.array(model.coefficients(), dtype=np.float64)
         powers = np.asarray(model.feature_library.powers_, dtype=np.int64)
-        empty = [n for n, row in zip(train.target_names, coef) if not np.any(row)]
+        scaling = prep.scaling()
+        if second is not None:
+            # d(x)/dt = w_mean + w_std w exactly (kinematics, not identified)
+            coef[:k] = 0.0
+            bias = int(np.flatnonzero(~powers.any(axis=1))[0])
+            for i in range(k):
+                unit_w = np.zeros(powers.shape[1], dtype=np.int64)
+                unit_w[k + i] = 1
+                coef[i, bias] = second.w_mean[i]
+                coef[i, int(np.flatnonzero((powers == unit_w).all(axis=1))[0])] = second.w_std[i]
+            model.optimizer.coef_ = coef.copy()
+            scaling.update(state_mean=second.state_mean, state_std=second.state_std, lower=second.lower,
+                           upper=second.upper)
+        empty = [n for n, row in zip(state_names[-k:], coef[-k:]) if not np.any(row)]
         if empty:
             notes.append(
                 f"every term of d({', '.join(empty)})/dt was thresholded away (threshold {p['threshold']:g}, "
                 f"{self.options['threshold_scale']}): the model is "
-                "dx/dt = 0, so each prediction is the segment's initial value held constant (a flat line that is "
-                "not a divergence); lower the threshold for a model with terms"
+                + ("dx/dt = 0, so each prediction is the segment's initial value held constant (a flat line that is "
+                   "not a divergence)" if order == 1 else "d2x/dt2 = 0, so each prediction is a straight line at the "
+                   "initial rate") + "; lower the threshold for a model with terms"
             )
         return SINDyFit(
-            model=model, coef=coef, powers=powers, **prep.scaling(),
-            time_scale=float(self.options["time_scale"]), params=p, state_names=tuple(train.target_names),
+            model=model, coef=coef, powers=powers, **scaling,
+            time_scale=float(self.options["time_scale"]), params=p, state_names=tuple(state_names),
             control_names=tuple(train.input_names), derivative=self.options["derivative"],
             derivative_alpha=self.derivative_alpha, notes=notes, threshold_scale=self.options["threshold_scale"],
-            derivative_rms=prep.derivative_rms, threshold_unit=unit,
+            derivative_rms=rms, threshold_unit=unit, order=order,
         )

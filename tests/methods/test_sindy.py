@@ -293,22 +293,26 @@ def test_deterministic_and_picklable():
 def test_predict_grid_shares_work_and_matches_fit_predict():
     m = SINDy(derivative="kalman", degrees=(1, 2), n_thresholds=2, n_alphas=1)
     space = m.search_space(LINEAR)
-    assert list(space) == ["degree", "threshold", "alpha"]
+    assert list(space) == ["order", "degree", "threshold", "alpha"]
+    np.testing.assert_array_equal(space["order"], [1, 2])  # both orders by default
     np.testing.assert_allclose(space["threshold"], [1e-2, 0.5])  # relative to each derivative's rms
     assert space["alpha"][0] == pytest.approx(1e-4)
     grid = grid_points(space)
     test = replace(LINEAR, segments=LINEAR.segments[:2]).without_targets()
     out = m.predict_grid(LINEAR, test, grid, RNG)
-    assert out.shape == (4, len(test), 1)
+    assert out.shape == (8, len(test), 1)
+    # every model of the grid simulated in one loop: the same numbers as its own predict, bit for bit
     for k, params in enumerate(grid):
         np.testing.assert_array_equal(out[k], np.concatenate(m.predict(m.fit(LINEAR, params, RNG), test)))
+    assert m.keeps_grid_models()
     # half the derivative's rms keeps both terms of dx/dt = -2x + 3u
-    assert all(m.describe(m.fit(LINEAR, p, RNG))["term_count"] == 2 for p in grid if p["threshold"] == 0.5)
+    assert all(m.describe(m.fit(LINEAR, p, RNG))["term_count"] == 2 for p in grid
+               if p["threshold"] == 0.5 and p["order"] == 1)
 
 
 def test_default_grid_is_small_relative_and_the_absolute_scale_keeps_the_seed_ranges():
     space = SINDy().search_space(LINEAR)
-    assert [len(v) for v in space.values()] == [3, 4, 3]
+    assert [len(v) for v in space.values()] == [2, 3, 4, 3]
     assert space["threshold"][0] == pytest.approx(1e-2) and space["threshold"][-1] == pytest.approx(0.5)
     assert space["alpha"][0] == pytest.approx(1e-4) and space["alpha"][-1] == pytest.approx(1e-1)
     seed = SINDy(threshold_scale="absolute").search_space(LINEAR)["threshold"]
@@ -407,7 +411,7 @@ def test_default_grid_keeps_terms_of_a_slow_system_that_absolute_thresholds_empt
     of a few 1e-3 per second. The seed's absolute grid (1e-2 .. 1e3) removes every term at every point; no point of
     the relative default grid does."""
     slow = _resampled(LINEAR, 100.0)
-    rel, seed = SINDy(derivative="kalman"), SINDy(derivative="kalman", threshold_scale="absolute")
+    rel, seed = SINDy(derivative="kalman", orders=(1,)), SINDy(derivative="kalman", threshold_scale="absolute", orders=(1,))
     grid_rel = grid_points(rel.search_space(slow))
     assert all(rel.describe(rel.fit(slow, p, RNG))["term_count"] >= 2 for p in grid_rel if p["degree"] == 1)
     assert all(rel.describe(rel.fit(slow, p, RNG))["constant_states"] == [] for p in grid_rel)
@@ -461,7 +465,7 @@ def test_default_grid_keeps_a_term_where_the_library_explains_little():
                             "y": np.cumsum(rng.normal(size=200)) * 0.1 + rng.normal(size=200)}) for k in range(3)]
     data = make_samples(Dataset("noise", pd.concat(frames, ignore_index=True),
                                 Schema.from_roles({"u": "input", "y": "output"}), DT), ["y"], "simulation")
-    m = SINDy(derivative="kalman")
+    m = SINDy(derivative="kalman", orders=(1,))
     grid = grid_points(m.search_space(data))
     fits = [m.fit(data, p, RNG) for p in grid]
     assert all(m.describe(f)["term_count"] >= 1 for f in fits)
@@ -475,7 +479,7 @@ def test_default_grid_keeps_a_term_where_the_library_explains_little():
 def test_the_final_fit_reuses_the_grid_searchs_derivatives_and_equals_a_fresh_one(monkeypatch):
     """A job differentiates its training data once (the grid search), not again for the final fit:
     the prepared set is kept per process; a fit from it equals a fit computed afresh, and
-    other data or another derivative setting is differentiated anew."""
+    other data or another derivative setting is differentiated anew (``derivative_scale = "training"``)."""
     import enginebench.methods.sindy as sindy_module
 
     calls = []
@@ -487,7 +491,7 @@ def test_the_final_fit_reuses_the_grid_searchs_derivatives_and_equals_a_fresh_on
 
     monkeypatch.setattr(sindy_module, "differentiate", counting)
     sindy_module._prepared.clear()
-    m = SINDy(derivative="kalman", degrees=(1,), n_thresholds=2, n_alphas=1)
+    m = SINDy(derivative="kalman", derivative_scale="training", degrees=(1,), n_thresholds=2, n_alphas=1, orders=(1,))
     grid = grid_points(m.search_space(LINEAR))
     test = replace(LINEAR, segments=LINEAR.segments[:2]).without_targets()
     m.predict_grid(LINEAR, test, grid, RNG)
@@ -500,10 +504,45 @@ def test_the_final_fit_reuses_the_grid_searchs_derivatives_and_equals_a_fresh_on
     assert len(calls) == 2 * per_training_set
     np.testing.assert_array_equal(kept.coef, fresh.coef)
     np.testing.assert_array_equal(np.concatenate(m.predict(kept, test)), np.concatenate(m.predict(fresh, test)))
-    SINDy(derivative="kalman", derivative_alpha=2.0, degrees=(1,)).fit(LINEAR, grid[0], RNG)
+    SINDy(derivative="kalman", derivative_scale="training", derivative_alpha=2.0, degrees=(1,)).fit(LINEAR, grid[0], RNG)
     m.fit(QUADRATIC, grid[0], RNG)
     assert len(calls) == 2 * per_training_set + len(LINEAR.segments) + len(QUADRATIC.segments)
     assert not m._prepare(LINEAR).x_dot[0].flags.writeable  # what a later fit reads cannot be changed
+
+
+def test_segment_scaled_derivatives_are_computed_once_per_record_across_training_sets(monkeypatch):
+    """With the default ``derivative_scale = "segment"`` a segment's derivative depends on the segment alone:
+    k-fold training sets that share a record, and the final fit, differentiate it once; a second-order
+    model's second derivatives are kept the same way. The fit equals one computed with an empty cache."""
+    import enginebench.methods.sindy as sindy_module
+    import enginebench.methods.sindy_grid as grid_module
+
+    calls = []
+    real = grid_module.differentiate
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(grid_module, "differentiate", counting)
+    monkeypatch.setattr(sindy_module, "differentiate", counting)
+    sindy_module._prepared.clear()
+    grid_module.clear_segment_cache()
+    m = SINDy(derivative_chunk=128, derivative_margin=16)
+    params = {"order": 2, "degree": 1, "threshold": 0.05, "alpha": 1e-4}
+    folds = [replace(LINEAR, segments=tuple(LINEAR.segments[j] for j in keep)) for keep in ((0, 1), (1, 2), (0, 2))]
+    fits = [m.fit(fold, params, RNG) for fold in folds]
+    assert len(calls) == 2 * len(LINEAR.segments)  # each record's dy/dt and d2y/dt2 once, over three training sets
+    final = m.fit(LINEAR, params, RNG)
+    assert len(calls) == 2 * len(LINEAR.segments)
+    sindy_module._prepared.clear()
+    grid_module.clear_segment_cache()
+    fresh = m.fit(LINEAR, params, RNG)
+    np.testing.assert_array_equal(final.coef, fresh.coef)
+    assert len({f.state_std[0] for f in fits}) == 3  # the training sets' standardisations do differ
+    # the derivative in raw units does not depend on the training set it came with
+    a, b = (m._prepare(f) for f in folds[:2])
+    np.testing.assert_allclose(a.x_dot[1] * a.state_std, b.x_dot[0] * b.state_std, rtol=1e-12)
 
 
 def test_tv_derivatives_are_solved_to_optimality_unless_the_lasso_solver_is_asked_for():
