@@ -396,6 +396,12 @@ class SINDy(Method):
         """Equations (standardised and in raw units), term count and the selected parameters."""
         names = fitted.model.get_feature_names()
         raw = raw_coefficients(fitted)
+        if fitted.order == 2:  # d(y)/dt = y' exactly (the expansion leaves rounding residue in the constant)
+            k = fitted.n_targets
+            raw[:k] = 0.0
+            for i in range(k):
+                raw[i, int(np.flatnonzero((fitted.powers == np.eye(fitted.powers.shape[1], dtype=np.int64)[k + i])
+                                            .all(axis=1))[0])] = 1.0
         raw_names = ps.PolynomialLibrary(degree=fitted.params["degree"]).fit(
             np.zeros((1, fitted.powers.shape[1]))
         ).get_feature_names(list(fitted.state_names) + list(fitted.control_names))
