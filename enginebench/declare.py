@@ -83,6 +83,10 @@ class Field:
     searches: tuple[str, ...] = ()
     """Hyperparameters whose searched grid this option sets (``grid_edges``)."""
     edges: str = "both"
+    bound: tuple[float | None, float | None] = (None, None)
+    """Hard bounds of the searched values (``searches``), in the hyperparameter's own units: a value selected
+    at an edge of its grid is searched further that way (``experiments/extension.py``), never past these;
+    None on a side: not extended that way (the edge warning then says to widen the grid)."""
     message: str = ""
     """Replaces the generated refusal (an :class:`Invalid` template: ``{name}``, ``{value}``)."""
     type_label: str = ""
@@ -95,6 +99,9 @@ class Field:
             raise ValueError(f"field {self.name!r}: kind {self.kind!r} is not one of {', '.join(KINDS)}")
         if self.edges not in EDGES:
             raise ValueError(f"field {self.name!r}: edges {self.edges!r} is not one of {', '.join(EDGES)}")
+        lo, hi = self.bound
+        if lo is not None and hi is not None and not lo < hi:
+            raise ValueError(f"field {self.name!r}: bound {self.bound!r} must be (low, high) with low < high")
 
     # -- describing ---------------------------------------------------------------------------
     def bounds(self) -> str:
@@ -353,12 +360,24 @@ class Declaration:
         return out
 
     def rows(self) -> list[tuple[str, str, str, str, str]]:
-        """(name, type, default, unit, meaning) per field, for printing."""
-        return [(f.name, f.type_text(), _shown(f.default), f.unit, f.meaning) for f in self.fields]
+        """(name, type, default, unit, meaning) per field, for printing (a searched grid's hard bounds appended)."""
+        return [(f.name, f.type_text(), _shown(f.default), f.unit, f.meaning + _bound_text(f)) for f in self.fields]
 
     def edges(self) -> dict[str, str]:
         """Searched hyperparameter -> grid edges worth a warning, from the fields that set a grid."""
         return {param: f.edges for f in self.fields for param in f.searches}
+
+    def bounds(self) -> dict[str, tuple[float | None, float | None]]:
+        """Searched hyperparameter -> its declared hard bounds (low, high), for those that declare one."""
+        return {param: f.bound for f in self.fields for param in f.searches if f.bound != (None, None)}
+
+
+def _bound_text(f: Field) -> str:
+    lo, hi = f.bound
+    if (lo, hi) == (None, None) or not f.searches:
+        return ""
+    side = [f">= {lo:g}" if lo is not None else "", f"<= {hi:g}" if hi is not None else ""]
+    return f"; extended at its edges, {' and '.join(s for s in side if s)} ({', '.join(f.searches)})"
 
 
 def _shown(value: Any) -> str:

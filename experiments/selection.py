@@ -18,6 +18,7 @@ import pandas as pd
 from enginebench.datasets.samples import Samples
 from enginebench.datasets.splits import blocked_folds
 from enginebench.errors import MethodError, SpecError
+from enginebench.experiments.extension import MAX_ROUNDS, Extension, extend
 from enginebench.experiments.search import range_positions, range_warnings, search_points
 from enginebench.experiments.spec import Selection
 from enginebench.methods.base import Method, grid_points
@@ -151,11 +152,28 @@ def grid_positions(space: dict[str, np.ndarray], chosen: dict[str, Any],
 
 
 def edge_warnings(method: str, space: dict[str, np.ndarray], chosen: dict[str, Any],
-                  rules: dict[str, str] | None = None) -> list[str]:
-    """A warning for each selected value at an edge of a numeric grid of 3 or more values that ``rules`` warns about."""
-    return [f"{method}: {name} = {e['value']:g} selected at the {e['edge']} edge of its grid "
-            f"[{e['lower']:g} .. {e['upper']:g}]; the optimum may lie beyond it: widen the grid"
-            for name, e in grid_positions(space, chosen, rules).items() if e["warn"]]
+                  rules: dict[str, str] | None = None, extension: Extension | None = None) -> list[str]:
+    """A warning for each selected value at an edge of a numeric grid of 3 or more values that ``rules`` warns about.
+
+    After an ``extension``: a value at its declared hard bound is said to be there (the search does not go
+    past a bound), one still at an edge when the extension's rounds ran out says so; a hyperparameter without a
+    declared bound keeps the advice to widen its grid."""
+    out = []
+    at_bound = extension.at_bound if extension is not None else {}
+    stopped = extension.stopped if extension is not None else {}
+    for name, e in grid_positions(space, chosen, rules).items():
+        if not e["warn"]:
+            continue
+        if name in at_bound:
+            out.append(f"{method}: {name} = {e['value']:g} selected at its declared hard bound {at_bound[name][1]:g} "
+                       f"(searched [{e['lower']:g} .. {e['upper']:g}]); the search does not go past the bound")
+        elif name in stopped:
+            out.append(f"{method}: {name} = {e['value']:g} still at the {e['edge']} edge after {MAX_ROUNDS} rounds of "
+                       f"extending its grid (searched [{e['lower']:g} .. {e['upper']:g}]); the optimum may lie beyond it")
+        else:
+            out.append(f"{method}: {name} = {e['value']:g} selected at the {e['edge']} edge of its grid "
+                       f"[{e['lower']:g} .. {e['upper']:g}]; the optimum may lie beyond it: widen the grid")
+    return out
 
 
 def edge_rules(method: Method) -> tuple[dict[str, str], dict[str, str]]:
@@ -219,6 +237,63 @@ class BestModel:
         return out
 
 
+class CandidateFailures:
+    """Scores grid points on one resample, a point that raises scored as failed (+inf) for that point alone.
+
+    A method predicts a whole grid at once; when that raises, each point is predicted alone, so one
+    candidate the data cannot carry (an order too high for a fold, a factorisation that breaks) fails itself
+    and not the job. Each failure is kept as a note (point, resample, reason) and summed up in one warning.
+    """
+
+    def __init__(self, method: str) -> None:
+        self.method = method
+        self.notes: list[dict[str, Any]] = []
+
+    def scores(self, method: Method, fit_part: Samples, val_part: Samples, points: list[dict[str, Any]],
+               rng: np.random.Generator, criterion: str, resample: int) -> np.ndarray:
+        view = val_part.without_targets()
+        try:
+            return grid_scores(method.predict_grid(fit_part, view, points, rng), val_part, criterion)
+        except Exception as whole_grid:  # noqa: BLE001 - any failure of a candidate is its own
+            if len(points) == 1:
+                self._note(points[0], resample, whole_grid)
+                return np.array([np.inf])
+        out = np.empty(len(points))
+        for i, point in enumerate(points):
+            try:
+                out[i] = grid_scores(method.predict_grid(fit_part, view, [point], rng), val_part, criterion)[0]
+            except Exception as bad:  # noqa: BLE001
+                self._note(point, resample, bad)
+                out[i] = np.inf
+        return out
+
+    def _note(self, point: dict[str, Any], resample: int, error: Exception) -> None:
+        reason = " ".join(str(error).split()) or type(error).__name__
+        self.notes.append({"point": {k: _plain(v) for k, v in point.items()}, "resample": resample + 1,
+                           "reason": f"{type(error).__name__}: {reason}"})
+
+    def warnings(self) -> list[str]:
+        """One line for all failed candidates: how many, on how many resamples, and the first reason."""
+        if not self.notes:
+            return []
+        points = {repr(n["point"]) for n in self.notes}
+        first = self.notes[0]
+        shown = ", ".join(f"{k}={_shown(v)}" for k, v in first["point"].items())
+        return [f"{self.method}: {len(points)} candidate(s) failed on {len(self.notes)} resample fit(s) and were "
+                f"scored as failed there (e.g. {shown} on resample {first['resample']}: {first['reason']})"]
+
+    def first_reason(self) -> str:
+        return f" (first failure: {self.notes[0]['reason']})" if self.notes else ""
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _shown(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 def select(method: Method, train: Samples, selection: Selection, rng: np.random.Generator,
            validation: Samples | None = None, init_samples: int = 0,
            keep_fitted: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -266,6 +341,7 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
 
     keeper = BestModel() if keep_fitted and selection.kind == "validation" and method.keeps_grid_models() else None
     evaluated = [0]
+    failures = CandidateFailures(method.name)
 
     def evaluate(points: list[dict[str, Any]]) -> np.ndarray:
         scores = np.empty((len(points), len(parts)))
@@ -273,8 +349,7 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
             if keeper is not None:
                 scores[:, j] = keeper.scores(method, fit_part, val_part, points, rng, selection.criterion, evaluated[0])
             else:
-                preds = method.predict_grid(fit_part, val_part.without_targets(), points, rng)
-                scores[:, j] = grid_scores(preds, val_part, selection.criterion)
+                scores[:, j] = failures.scores(method, fit_part, val_part, points, rng, selection.criterion, j)
         evaluated[0] += len(points)
         return scores
 
@@ -282,28 +357,45 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
         scores = evaluate(grid)
     else:  # random or bayes: points drawn or proposed over the ranges the grid spans (experiments/search.py)
         grid, scores = search_points(space, selection.search, selection.trials, rng, evaluate)
+    rules, options = edge_rules(method)
+    bounds = method.search_bounds(train)
+    extension = None
+    searched = len(grid)
+    if selection.search == "grid" and bounds:
+        extension = extend(space, grid, scores, evaluate, bounds, rules, WARNED_EDGES)
+        grid, scores, space = extension.points, extension.scores, extension.extended_space
     total = np.zeros(len(grid))
     for j in range(len(parts)):
         total += scores[:, j]
     mean = total / len(parts)
     if not np.isfinite(mean).any():
-        raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions")
-    best = int(np.argmin(mean))
-    rules, options = edge_rules(method)
+        raise MethodError(f"model selection for {method.name!r}: every grid point gave non-finite predictions"
+                          + failures.first_reason())
+    best = int(np.argmin(np.where(np.isfinite(mean), mean, np.inf)))
     if selection.search == "grid":
         edges = grid_positions(space, grid[best], rules)
-        warnings = edge_warnings(method.name, space, grid[best], rules)
+        warnings = edge_warnings(method.name, space, grid[best], rules, extension)
     else:
         edges = range_positions(space, grid[best], rules, WARNED_EDGES)
         warnings = range_warnings(method.name, edges)
     for name, found in edges.items():
         found["option"] = options.get(name)
-    record = {"grid_size": len(grid), "best_score": float(mean[best]), "resamples": len(parts),
+        if extension is not None and name in extension.added:
+            found["extended"] = [float(v) for v in extension.added[name]]
+        if extension is not None and name in extension.at_bound:
+            found["bound"] = extension.at_bound[name][1]
+    record = {"grid_size": searched, "best_score": float(mean[best]), "resamples": len(parts),
               "grid_edges": edges, "table": SelectionTable(grid, scores, selection.criterion, best)}
     if selection.search != "grid":
         record["search"] = selection.search
+    if extension is not None and extension.added:
+        record["extended"] = {name: [float(v) for v in added] for name, added in extension.added.items()}
+        record["extension_points"] = len(grid) - searched
     if keeper is not None and keeper.index == best:
         record["fitted"] = keeper.fitted
+    warnings += failures.warnings()
+    if failures.notes:
+        record["failed_candidates"] = failures.notes
     if warnings:
         record["warnings"] = warnings
     return grid[best], record

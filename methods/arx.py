@@ -179,6 +179,10 @@ class ARX(GivenOrders, Method):
         return {**self.order_space(data, int(self.options["max_order"]), ORDER_BASE, tied="order"),
                 "nk": np.array(nk if nk is not None else list(DEFAULT_NK))}
 
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """The orders the training data carry (within ``max_order``): a grid's top order extended up to them."""
+        return self.order_bounds(data, int(self.options["max_order"]), "order")
+
     @staticmethod
     def _orders_of(params: Params) -> tuple[int, int, int]:
         """(na, nb, nk) of a grid point: ``order`` sets na = nb unless they are given."""

@@ -111,6 +111,12 @@ class Method:
         listed has no declaring option, e.g. a fixed search space)."""
         return cls.option_declaration().edges()
 
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """Searched hyperparameter -> hard bounds (low, high) that model selection may extend its grid to when the
+        selected value sits at an edge (``experiments/extension.py``). The default reads the declared options'
+        ``bound``; a method whose bounds depend on the data (the most lags a record carries) overrides it."""
+        return self.option_declaration().bounds()
+
     def check_columns(self, inputs: Sequence[str], internals: Sequence[str], targets: Sequence[str]) -> None:
         """Optional hook, called before the first job: MethodError when an option names a column the experiment's
         data do not have in that role (so the mistake is one line up front, not a failed job per repetition)."""

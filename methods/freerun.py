@@ -162,6 +162,13 @@ class GivenOrders:
             return {tied: np.array(derived)}
         return {key: np.array(given[key] if given[key] is not None else derived) for key in ("na", "nb")}
 
+    def order_bounds(self, data: Samples, cap: int, tied: str) -> dict[str, tuple[float | None, float | None]]:
+        """Hard bounds of the lag orders for model selection's extension: 1 to the most lags the training data
+        carry (``carried_order``) within ``cap``, for ``tied`` and for na and nb."""
+        sizes = [len(s) for s in data.segments] or [0]
+        top = max(carried_order(min(sizes), sum(sizes), len(data.input_names), cap), 1)
+        return {key: (1.0, float(top)) for key in (tied, "na", "nb")}
+
 
 def orders(name: str, default: object, meaning: str, low: int = 0, high: int | None = None, why: str = "",
            message: str = "", **kw: object) -> Field:
@@ -191,6 +198,11 @@ ENVELOPE = positive("envelope", 10.0, "divergence: a simulated output leaving [m
 """The ``envelope`` option of the free-run methods."""
 
 
+def carried_order(n_shortest: int, n_rows: int, n_inputs: int, cap: int) -> int:
+    """The most lags (samples) the training data carry under ``derived_orders``' rules (0 when none)."""
+    return int(max(0, min(cap, n_shortest // 4, (n_rows / 10 - 1) // (1 + n_inputs))))
+
+
 def derived_orders(n_shortest: int, n_rows: int, n_inputs: int, cap: int, base: Sequence[int] = (1, 2, 4, 8, 16)
                    ) -> list[int]:
     """Lag orders (samples) from ``base`` that the training data can carry.
@@ -200,5 +212,6 @@ def derived_orders(n_shortest: int, n_rows: int, n_inputs: int, cap: int, base: 
     output lags and o lags of each input has at most a tenth as many parameters as there
     are training rows. The smallest order is always kept.
     """
-    keep = [o for o in base if o <= cap and o <= n_shortest // 4 and (1 + n_inputs) * o + 1 <= n_rows / 10]
+    top = carried_order(n_shortest, n_rows, n_inputs, cap)
+    keep = [o for o in base if o <= top]
     return keep or [min(base)]

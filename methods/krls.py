@@ -27,6 +27,12 @@ from enginebench.methods.numerics.shifted import ridge_solutions
 
 
 SOLVERS = ("auto", "exact", "falkon")
+GAMMA_BOUND = (1e-8, 1e6)
+"""Hard bounds of a searched kernel width on standardised features: below 1e-8 the kernel is flat to rounding over
+any standardised data, above 1e6 it is a nearest-neighbour lookup."""
+LAMBDA_BOUND = (1e-14, 1e8)
+"""Hard bounds of a searched ridge penalty, relative to the kernel's scale (its diagonal is 1): below 1e-14 the
+penalty is lost to rounding in the kernel's largest eigenvalues; above 1e8 the fit is the mean."""
 
 
 @dataclass(frozen=True)
@@ -65,9 +71,9 @@ class KRLS(Method):
         flag("standardize", True, "scale each feature to zero mean and unit variance on the training rows"),
         flag("center_target", True, "fit the targets minus their training mean (added back to predictions)"),
         grid("gamma_grid", (-4, 4, 41), "kernel widths searched: log10 of gamma in exp(-gamma |x - x'|^2) "
-             "(low, high, count)", searches=("gamma",)),
+             "(low, high, count)", searches=("gamma",), bound=GAMMA_BOUND),
         grid("lambda_grid", (-4, 4, 41), "ridge penalties searched: log10 of lambda (low, high, count)",
-             searches=("lambda",)),
+             searches=("lambda",), bound=LAMBDA_BOUND),
         choice("solver", "auto", "exact (one tridiagonalisation per gamma), falkon (Nystroem centres + CG), "
                "auto: exact up to exact_max_rows training rows", SOLVERS,
                message="{name} must be one of " + ", ".join(SOLVERS) + ", got {value}"),

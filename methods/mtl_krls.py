@@ -115,7 +115,7 @@ class MTLKRLS(KRLS):
     summary = "hybrid multi-task KRLS: measurements and the physical model as two tasks"
     declared_options = KRLS.declared_options.extend(
         grid("theta_grid", (-4, 4, 41), "task couplings searched: log10 of theta, pulling the y and PM task models "
-             "towards the shared one (low, high, count)", searches=("theta",)),
+             "towards the shared one (low, high, count)", searches=("theta",), bound=(1e-10, 1e10)),
         flag("pm_feature", True, "the physical model's prediction is also an input feature"),
         flag("pm_task", True, "learn the PM's prediction as a second task (false: the y task twice, no PM task)"),
         choice("predict_with", "shared", "predict with the shared model (the seed's) or the y-task model",

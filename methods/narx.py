@@ -87,9 +87,9 @@ class NARX(GivenOrders, Method):
               low=1, unit="samples"),
         flag("linear", True, "an unpenalised linear ARX part beside the kernel"),
         grid("gamma_grid", (-3.0, 0.0, 4), "kernel widths searched: log10 of gamma relative to the regressor count d "
-             "(low, high, count)", searches=("gamma",)),
+             "(low, high, count)", searches=("gamma",), bound=(1e-8, 1e3)),
         grid("lambda_grid", (-12.0, -4.0, 5), "ridge penalties searched: log10 of lambda relative to the number of "
-             "regression rows (low, high, count)", searches=("lambda",)),
+             "regression rows (low, high, count)", searches=("lambda",), bound=(1e-15, 1.0)),
         whole("exact_max_rows", 1000, "every regression row a kernel centre up to this many rows, Nystroem centres "
               "above", low=1, unit="rows"),
         whole("centres", 500, "Nystroem centres (the cost of one simulated step)", low=1, unit="rows"),
@@ -105,6 +105,10 @@ class NARX(GivenOrders, Method):
         space["gamma"] = log_grid(*self._grid("gamma_grid"))
         space["lambda"] = log_grid(*self._grid("lambda_grid"))
         return space
+
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """The declared kernel bounds and the lags the training data carry (within ``max_lag``)."""
+        return {**super().search_bounds(data), **self.order_bounds(data, int(self.options["max_lag"]), "lags")}
 
     def _grid(self, key: str) -> tuple[float, float, int]:
         lo, hi, num = self.options[key]

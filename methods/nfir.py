@@ -54,7 +54,7 @@ from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, SegmentPredictions, split_rows
 from enginebench.methods.numerics.kernels import Spectral, check_positive, gaussian, sq_distances
 from enginebench.methods.input_history import HISTORY_OPTIONS, InputHistory
-from enginebench.methods.krls import KRLS, KRLSFitted
+from enginebench.methods.krls import GAMMA_BOUND, LAMBDA_BOUND, KRLS, KRLSFitted
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
                                              lag_feature_names, lagged_inputs, memory_ladder, nfir_lags)
 
@@ -104,9 +104,10 @@ class NFIR(InputHistory, KRLS):
 
     declared_options = KRLS.declared_options.extend(
         grid("gamma_grid", (-5, -1, 5), "kernel widths searched: log10 of gamma relative to the feature count d "
-             "(the kernel is exp(-(gamma / d) |x - x'|^2)) (low, high, count)", searches=("gamma",)),
+             "(the kernel is exp(-(gamma / d) |x - x'|^2)) (low, high, count)", searches=("gamma",),
+             bound=GAMMA_BOUND),
         grid("lambda_grid", (-8, 0, 9), "ridge penalties searched: log10 of lambda (low, high, count)",
-             searches=("lambda",)),
+             searches=("lambda",), bound=LAMBDA_BOUND),
         *HISTORY_OPTIONS[:3],
         whole("max_rows", 1000, "training rows the kernel is fitted on (a draw of the job's generator; 0 = all)",
               low=0, unit="rows", message="{name} must be an integer >= 0 (0 = all rows), got {value}"),

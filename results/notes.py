@@ -37,6 +37,8 @@ def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
     (method, hyperparameter, edge) picked at least once, e.g.
     ``grid edge: krls: gamma at the upper edge of its grid (10000) in 8 of 8 repetitions: widen gamma_grid``.
 
+    Where selection extended the grid to a hyperparameter's declared hard bound (``bound`` in the record)
+    the line says so instead of advising to widen the grid.
     Counts the jobs whose selection record (``search.grid_edges``) places the selected value at an
     edge worth a warning (the method's edge rules) among the jobs that searched that
     hyperparameter; "repetitions" when those jobs share one target, window and split, else "jobs".
@@ -45,6 +47,7 @@ def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
     searched: dict[tuple[str, str], list[tuple[Any, Any, Any]]] = {}
     picks: dict[tuple[str, str, str], list[float]] = {}
     options: dict[tuple[str, str], str] = {}
+    bounded: set[tuple[str, str, str]] = set()
     for meta in metas:
         search = meta.get("search")
         edges = search.get("grid_edges") if isinstance(search, dict) else None
@@ -60,6 +63,8 @@ def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
             side = where.get("edge")
             if side in ("lower", "upper") and where.get("warn", True):
                 picks.setdefault((method, param, side), []).append(float(where[side]))
+                if where.get("bound") is not None:
+                    bounded.add((method, param, side))
     lines = []
     for (method, param, side), bounds in sorted(picks.items()):
         coords = searched[(method, param)]
@@ -67,8 +72,10 @@ def edge_note_lines(metas: Iterable[dict[str, Any]]) -> list[str]:
         lo, hi = min(bounds), max(bounds)
         at = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}"
         option = options.get((method, param))
+        advice = ("the search was extended to its declared hard bound and stops there"
+                  if (method, param, side) in bounded else f"widen {option or 'its grid'}")
         lines.append(f"grid edge: {method}: {param} at the {side} edge of its grid ({at}) in {len(bounds)} of "
-                     f"{len(coords)} {unit}: widen {option or 'its grid'}")
+                     f"{len(coords)} {unit}: {advice}")
     return lines
 
 

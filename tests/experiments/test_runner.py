@@ -80,7 +80,9 @@ def test_workers_share_spilled_raw_data_and_agree_with_serial(toy_parquet, tmp_p
     key = ["method", "window", "repetition", "split", "metric"]
     s = serial[~serial["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
     p = pooled[~pooled["metric"].str.startswith("time_")].sort_values(key)["value"].to_numpy()
-    np.testing.assert_allclose(s, p, rtol=1e-9, atol=1e-12)
+    # selection extends the ridge penalty towards its bound (1e-14) on these noise-free toy records, where the
+    # solutions' last digits follow the BLAS's summation order (threads per process): agreement to 1e-7
+    np.testing.assert_allclose(s, p, rtol=1e-7, atol=1e-12)
     assert len(spills) == 1 and spills[0].parent == scratch  # only the pooled run spills
     assert not list(scratch.iterdir())  # the spill folder is removed after the run
 

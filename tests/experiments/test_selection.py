@@ -130,9 +130,16 @@ def test_edge_rules_decide_which_grid_edges_are_warned_about():
     assert edge_warnings("m", space, chosen, {"degree": "none", "alpha": "low"}) == []
 
 
+class UnboundedKRLS(KRLS):
+    """KRLS as a plugin without declared bounds: its grids are never extended."""
+
+    def search_bounds(self, data):
+        return {}
+
+
 def test_the_record_names_the_option_that_sets_each_grid(toy):
     train = make_samples(toy.select_segments(["s0", "s1"]), ["y"])
-    method = KRLS(gamma_grid=(-4, -3, 3), lambda_grid=(-3, -1, 3))
+    method = UnboundedKRLS(gamma_grid=(-4, -3, 3), lambda_grid=(-3, -1, 3))
     _, record = select(method, train, Selection(resamples=2), np.random.default_rng(0))
     edges = record["grid_edges"]
     assert edges["gamma"]["option"] == "gamma_grid" and edges["lambda"]["option"] == "lambda_grid"

@@ -142,7 +142,11 @@ def narrow_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("narrow")
     data = write_dataset(make_toy(), root / "toy.parquet")
     spec = toy_spec(data, methods={"naive-mean": {}, "krls": {"gamma_grid": [-4, -3, 3], "lambda_grid": [-1, 1, 3]}})
-    return run_experiment(spec, RunStore(root / "runs"), workers=1).run
+    from enginebench.methods.krls import KRLS
+
+    with pytest.MonkeyPatch.context() as patch:  # krls as a plugin declaring no bounds: its grid is not extended
+        patch.setattr(KRLS, "search_bounds", lambda self, data: {})
+        return run_experiment(spec, RunStore(root / "runs"), workers=1).run
 
 
 def test_table_notes_a_grid_that_is_too_narrow(narrow_run):
@@ -159,7 +163,10 @@ def test_table_notes_a_grid_that_is_too_narrow(narrow_run):
         assert set(rows.loc[rows["chosen"], "point"]) == {int(mean.idxmin())}
 
 
-def test_resume_recomputes_only_the_job_whose_table_is_damaged(narrow_run, tmp_path):
+def test_resume_recomputes_only_the_job_whose_table_is_damaged(narrow_run, tmp_path, monkeypatch):
+    from enginebench.methods.krls import KRLS
+
+    monkeypatch.setattr(KRLS, "search_bounds", lambda self, data: {})  # as the run was made (narrow_run)
     store = tmp_path / "runs"
     shutil.copytree(narrow_run.store, store)
     run = RunStore(store).get(narrow_run.id)
