@@ -236,8 +236,8 @@ class SysIdentPyNARX(PeerMethod):
                message="{name}={value} must list degrees from 1 to 5"),
         orders("lags", None, "ylag = xlag: None = derived from {" + ", ".join(map(str, LAG_LADDER)) + "} within what "
                "the data carry", low=1, searches=("lags",), edges="high"),
-        whole("n_info_values", 30, "FROLS considers at most this many terms (the information criterion picks the "
-              "count)", low=1),
+        whole("n_info_values", 50, "FROLS considers at most this many terms (the information criterion picks the "
+              "count; a job warns when it kept falling up to this cap)", low=1),
         choice("info_criteria", "aic", "information criterion of FROLS's term count", INFO_CRITERIA,
                message="{name} must be one of " + ", ".join(INFO_CRITERIA) + ", got {value}"),
         whole("max_candidates", 2000, "a (degree, lags) point with more FROLS candidate terms is skipped by the grid "
@@ -332,11 +332,17 @@ class SysIdentPyNARX(PeerMethod):
 
         out: dict[str, Any] = {"degree": fitted.degree, "lags": fitted.lags, "package": "sysidentpy",
                                "units": "standardised signals (training mean and std)", "targets": {}}
+        cap, criterion, capped = int(self.options["n_info_values"]), str(self.options["info_criteria"]), []
         for name, model in zip(fitted.target_names, fitted.models):
             rows = results(model.final_model, model.theta, model.err, model.n_terms, err_precision=6, dtype="dec")
+            values = [float(v) for v in np.asarray(model.info_values).reshape(-1)]
             out["targets"][name] = {"terms": [[r[0], float(r[1])] for r in rows], "n_terms": len(rows),
-                                    "info_criteria": str(self.options["info_criteria"]),
-                                    "info_values": [float(v) for v in np.asarray(model.info_values).reshape(-1)]}
+                                    "info_criteria": criterion, "info_values": values}
+            if len(values) == cap and int(model.n_terms) == cap:
+                capped.append(name)
+        if capped:
+            out["warnings"] = [f"the information criterion ({criterion}) kept falling up to n_info_values = {cap} "
+                               f"terms ({', '.join(capped)}); raise n_info_values"]
         return self._with_skipped(out)
 
 

@@ -274,3 +274,17 @@ def test_an_infeasible_n4sid_order_is_skipped_without_failing_the_job(tmp_path):
     meta = run.job_meta(run.job_files()[0].stem)
     assert meta["status"] == "ok" and int(meta["params"]["order"]) == 2
     assert any("too few for the 60 Hankel block rows of order 40" in r for r in meta["describe"]["skipped"])
+
+
+@needs_sysidentpy
+def test_a_criterion_still_falling_at_n_info_values_is_a_job_warning(data):
+    train, _ = data
+    m = SysIdentPyNARX(n_info_values=2)  # noise-free data: every further term lowers the criterion
+    fit = m.fit(train, {"degree": 1, "lags": 2}, np.random.default_rng(0))
+    d = m.describe(fit)
+    assert d["targets"]["y"]["n_terms"] == 2 and len(d["targets"]["y"]["info_values"]) == 2
+    assert d["warnings"] == ["the information criterion (aic) kept falling up to n_info_values = 2 terms (y); "
+                             "raise n_info_values"]
+    roomy = SysIdentPyNARX(n_info_values=7)  # all 7 candidates (1 + 3 signals x 2 lags): the criterion rises at 6
+    d = roomy.describe(roomy.fit(train, {"degree": 1, "lags": 2}, np.random.default_rng(0)))
+    assert d["targets"]["y"]["n_terms"] < 7 and "warnings" not in d
