@@ -46,14 +46,13 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 import pysindy as ps
-from sklearn.linear_model import ridge_regression
 
 from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, Field, Invalid, choice, listing, positive, whole
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.numerics.derivatives import digest
-from enginebench.methods.sindy_grid import segment_derivative, simulate_candidates
+from enginebench.methods.sindy_grid import library_gram, segment_derivative, simulate_candidates, stlsq_gram
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
     DERIVATIVE_KINDS, DERIVATIVE_SOLVERS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
 )
@@ -63,6 +62,9 @@ DEFAULT_PARAMS = {"order": 1, "degree": 2, "threshold": 0.1, "alpha": 0.05}
 ORDERS = (1, 2)
 """Model orders: dy/dt = Theta(y, u) xi, or d2y/dt2 = Theta(y, dy/dt, u) xi with the state (y, dy/dt)."""
 THRESHOLD_SCALES = ("relative", "absolute")
+STLSQ_ROUTES = ("gram", "pysindy")
+"""How STLSQ is solved: from the library's Gram matrix, formed once per order and degree and shared by the
+grid's thresholds and alphas, or by pysindy on the samples for every fit (earlier results)."""
 DERIVATIVE_SCALES = ("segment", "training")
 """What ``derivative_alpha`` is relative to: each segment's own standard deviation (its derivative then
 depends on the segment alone and is computed once per process), or the training set's (before)."""
@@ -216,16 +218,26 @@ def threshold_unit(prep: "_Prepared", degree: int, alpha: float, order: int = 1)
     key = ("unit", int(order), int(degree), float(alpha))
     if key in prep.memo:
         return prep.memo[key]
-    states, targets, rms = _system(prep, order)
-    z = [x if u is None else np.hstack([x, u]) for x, u in zip(states, prep.u or [None] * len(states))]
-    z = np.vstack(z)
-    powers = ps.PolynomialLibrary(degree=int(degree)).fit(z[:1]).powers_
-    theta = library_features(z, np.asarray(powers, dtype=np.int64))
-    first = ridge_regression(theta, np.concatenate(targets), float(alpha))
+    _, targets, rms = _system(prep, order)
+    _, G, B = gram(prep, order, degree)
+    A = G.copy()
+    A.flat[:: G.shape[0] + 1] += float(alpha)
+    first = np.linalg.solve(A, B).T  # the ridge fit of every derivative on the whole library
     largest = np.abs(np.atleast_2d(first)).max(axis=1)
     unit = np.where(np.isfinite(largest) & (largest > 0), np.minimum(rms, largest), rms)
     prep.memo[key] = unit
     return unit
+
+
+def gram(prep: "_Prepared", order: int, degree: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(powers, Theta' Theta, Theta' X_dot) of the order's degree-``degree`` library, formed once per preparation."""
+    key = ("gram", int(order), int(degree))
+    if key not in prep.memo:
+        states, targets, _ = _system(prep, order)
+        n_vars = states[0].shape[1] + (prep.u[0].shape[1] if prep.u else 0)
+        powers = np.asarray(ps.PolynomialLibrary(degree=int(degree)).fit(np.zeros((1, n_vars))).powers_, dtype=np.int64)
+        prep.memo[key] = (powers, *library_gram(states, prep.u, targets, powers))
+    return prep.memo[key]
 
 
 def _system(prep: "_Prepared", order: int) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
@@ -303,6 +315,8 @@ class SINDy(Method):
         choice("derivative_scale", "segment", "derivative_alpha relative to each segment's own standard deviation "
                "(each record differentiated once per process, shared by k-fold fits) or the training set's (earlier "
                "results)", DERIVATIVE_SCALES),
+        choice("stlsq", "gram", "how STLSQ is solved: from the library's Gram matrix (formed once per order and "
+               "degree, shared by the grid) or by pysindy on every sample for every fit (earlier results)", STLSQ_ROUTES),
         positive("time_scale", 1.0, "time unit of the identified ODE (the derivative is per time_scale seconds)",
                  unit="s"),
         choice("integrator", "rk4", "open-loop simulation's integration scheme", INTEGRATORS),
@@ -394,7 +408,6 @@ class SINDy(Method):
 
     def describe(self, fitted: SINDyFit) -> dict[str, Any]:
         """Equations (standardised and in raw units), term count and the selected parameters."""
-        names = fitted.model.get_feature_names()
         raw = raw_coefficients(fitted)
         if fitted.order == 2:  # d(y)/dt = y' exactly (the expansion leaves rounding residue in the constant)
             k = fitted.n_targets
@@ -405,9 +418,12 @@ class SINDy(Method):
         raw_names = ps.PolynomialLibrary(degree=fitted.params["degree"]).fit(
             np.zeros((1, fitted.powers.shape[1]))
         ).get_feature_names(list(fitted.state_names) + list(fitted.control_names))
+        names = raw_names  # the library's terms, named by signal (the same for standardised signals)
         lhs = [f"d({n})/dt" for n in fitted.state_names]
+        equations = (fitted.model.equations(precision=4) if fitted.model is not None
+                     else [_format_terms(row, names) for row in fitted.coef])
         return {
-            "equations": [f"{l} = {eq}" for l, eq in zip(lhs, fitted.model.equations(precision=4))],
+            "equations": [f"{l} = {eq}" for l, eq in zip(lhs, equations)],
             "equations_units": "standardised signals (z-scores with training mean/std); time in units of "
             f"{fitted.time_scale:g} s",
             "equations_raw": [f"{l} = {_format_terms(row, raw_names)}" for l, row in zip(lhs, raw)],
@@ -687,15 +703,23 @@ class SINDy(Method):
         relative = self.options["threshold_scale"] == "relative"
         # relative: STLSQ on each derivative over its unit, so one threshold cuts equation k at threshold x unit_k
         unit = threshold_unit(prep, p["degree"], p["alpha"], order) if relative else np.ones_like(rms)
-        x_dot = [xd / unit for xd in targets] if relative else targets
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            model.fit(states, t=prep.t, x_dot=x_dot, u=prep.u, feature_names=names)
-        notes += sorted({str(w.message) for w in caught})
-        if relative:
-            model.optimizer.coef_ = np.asarray(model.optimizer.coef_, dtype=np.float64) * unit[:, None]
-        coef = np.array(model.coefficients(), dtype=np.float64)
-        powers = np.asarray(model.feature_library.powers_, dtype=np.int64)
+        x_dot = [xd / unit for xd in targets] if relative else targets  # (the pysindy route's targets)
+        if self.options["stlsq"] == "gram":
+            powers, G, B = gram(prep, order, p["degree"])
+            coef, said = stlsq_gram(G, B / unit if relative else B, p["threshold"], p["alpha"])
+            notes += sorted(set(said))
+            model = None
+            if relative:
+                coef = coef * unit[:, None]
+        else:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                model.fit(states, t=prep.t, x_dot=x_dot, u=prep.u, feature_names=names)
+            notes += sorted({str(w.message) for w in caught})
+            if relative:
+                model.optimizer.coef_ = np.asarray(model.optimizer.coef_, dtype=np.float64) * unit[:, None]
+            coef = np.array(model.coefficients(), dtype=np.float64)
+            powers = np.asarray(model.feature_library.powers_, dtype=np.int64)
         scaling = prep.scaling()
         if second is not None:
             # d(x)/dt = w_mean + w_std w exactly (kinematics, not identified)
@@ -706,7 +730,8 @@ class SINDy(Method):
                 unit_w[k + i] = 1
                 coef[i, bias] = second.w_mean[i]
                 coef[i, int(np.flatnonzero((powers == unit_w).all(axis=1))[0])] = second.w_std[i]
-            model.optimizer.coef_ = coef.copy()
+            if model is not None:
+                model.optimizer.coef_ = coef.copy()
             scaling.update(state_mean=second.state_mean, state_std=second.state_std, lower=second.lower,
                            upper=second.upper)
         empty = [n for n, row in zip(state_names[-k:], coef[-k:]) if not np.any(row)]

@@ -173,3 +173,80 @@ def segment_derivative(y: np.ndarray, dt: float, settings: dict[str, Any]) -> tu
     while len(_segment_cache) > SEGMENT_CACHE_SIZE:
         _segment_cache.popitem(last=False)
     return kept
+
+
+# --------------------------------------------------------------------------- STLSQ on the library's Gram matrix
+STLSQ_MAX_ITER = 20
+"""Thresholding passes (pysindy's STLSQ default)."""
+
+
+def library_gram(states: Sequence[np.ndarray], controls: Sequence[np.ndarray] | None, targets: Sequence[np.ndarray],
+                 powers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Theta' Theta, Theta' X_dot)`` of the polynomial library over every training segment, summed per segment."""
+    T = powers.shape[0]
+    G, B = np.zeros((T, T)), np.zeros((T, targets[0].shape[1]))
+    for j, (x, xd) in enumerate(zip(states, targets)):
+        z = x if controls is None else np.hstack([x, controls[j]])
+        theta = library_features(z, powers)
+        G += theta.T @ theta
+        B += theta.T @ xd
+    return G, B
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A symmetric system by Cholesky, or least squares where A is singular."""
+    try:
+        return np.linalg.solve(A, b) if np.all(np.isfinite(A)) else np.full(b.shape, np.nan)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def stlsq_gram(G: np.ndarray, B: np.ndarray, threshold: float, alpha: float,
+               max_iter: int = STLSQ_MAX_ITER) -> tuple[np.ndarray, list[str]]:
+    """Sequentially thresholded least squares (pysindy's ``STLSQ`` with its defaults) from the normal equations.
+
+    Each pass fits every equation's kept terms by ridge regression (``alpha``) and drops the
+    terms smaller than ``threshold``; passes stop when no term was dropped from the full
+    library in the first pass, when the kept terms did not change (the first pass compares
+    with the least-squares fit of the full library), or after ``max_iter``; the kept terms are
+    then refitted by least squares (unbiased). Working on ``G = Theta' Theta`` and
+    ``B = Theta' X_dot`` makes a fit cost O(terms^3) whatever the number of samples.
+    Returns the coefficients (targets, terms) and pysindy's warning lines for the notes.
+    """
+    T, k = G.shape[0], B.shape[1]
+    notes: list[str] = []
+    previous = np.linalg.lstsq(G, B, rcond=None)[0].T  # the full library's least squares (pysindy's history start)
+    ind = np.ones((k, T), dtype=bool)
+    coef = np.zeros((k, T))
+    empty = f"Sparsity parameter is too big ({threshold}) and eliminated all coefficients"
+    for _ in range(max_iter):
+        if not ind.any():
+            notes.append(empty)
+            coef = np.zeros((k, T))
+            break
+        coef = np.zeros((k, T))
+        for i in range(k):
+            kept = np.flatnonzero(ind[i])
+            if not kept.size:
+                notes.append(empty)
+                continue
+            A = G[np.ix_(kept, kept)].copy()
+            A.flat[:: kept.size + 1] += alpha
+            c = np.zeros(T)
+            c[kept] = _solve(A, B[kept, i])
+            big = np.abs(c) >= threshold
+            c[~big] = 0.0
+            coef[i], ind[i] = c, big
+        unchanged = np.array_equal(coef != 0, previous != 0)
+        previous = coef
+        if ind.sum() == k * T or unchanged:
+            break
+    else:
+        notes.append(f"STLSQ did not converge after {max_iter} iterations.")
+    ind = np.abs(coef) > 1e-14
+    out = np.zeros((k, T))
+    for i in range(k):
+        kept = np.flatnonzero(ind[i])
+        if kept.size:
+            out[i, kept] = np.linalg.lstsq(G[np.ix_(kept, kept)], B[kept, i], rcond=None)[0]
+    return out, notes
