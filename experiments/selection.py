@@ -237,6 +237,23 @@ class BestModel:
         return out
 
 
+NEAR_MEAN = 0.98
+"""A selected point scoring at least this share of the training mean's score has no skill worth the name (the
+tables' flag uses the same 2 %)."""
+
+
+def mean_baseline_score(parts: list[tuple[Samples, Samples]], criterion: str) -> float:
+    """The criterion of the fitting part's mean as the prediction of each validation part, averaged like the grid's:
+    the score a candidate must beat to have learnt anything."""
+    total = 0.0
+    for fit_part, val_part in parts:
+        if not len(fit_part) or not len(val_part):
+            return float("nan")
+        guess = np.broadcast_to(fit_part.y.mean(axis=0), val_part.y.shape)[None]
+        total += float(grid_scores(guess, val_part, criterion)[0])
+    return total / len(parts)
+
+
 class CandidateFailures:
     """Scores grid points on one resample, a point that raises scored as failed (+inf) for that point alone.
 
@@ -393,6 +410,12 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
         record["extension_points"] = len(grid) - searched
     if keeper is not None and keeper.index == best:
         record["fitted"] = keeper.fitted
+    baseline = mean_baseline_score(parts, selection.criterion)
+    record["mean_score"] = baseline
+    if np.isfinite(baseline) and mean[best] >= NEAR_MEAN * baseline:
+        warnings.append(f"{method.name}: no candidate scored better than the training mean on the selection's "
+                        f"resamples (best {selection.criterion} {mean[best]:.4g} vs the mean's {baseline:.4g}): "
+                        f"its model class or grid does not fit these data; expect no skill over the mean")
     warnings += failures.warnings()
     if failures.notes:
         record["failed_candidates"] = failures.notes

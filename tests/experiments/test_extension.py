@@ -45,6 +45,11 @@ class Bowl(Method):
         return [np.full((len(s.rows), 1), fitted) for s in data.segments]
 
 
+def grid_warnings(record):
+    """The record's warnings but the one that says the bowl (a constant) has no skill over the mean."""
+    return [w for w in record.get("warnings", []) if "training mean" not in w]
+
+
 @pytest.fixture
 def train(toy):
     return make_samples(toy.select_segments(["s0", "s1"]), ["y"])
@@ -53,7 +58,7 @@ def train(toy):
 def test_extension_reaches_an_optimum_far_outside_the_grid(train):
     params, record = select(Bowl(), train, Selection(kind="kfold", folds=3), np.random.default_rng(0))
     assert params["a"] == pytest.approx(1e-6) and params["b"] == 3
-    assert "warnings" not in record  # the optimum is inside the extended grid: nothing to widen
+    assert grid_warnings(record) == []  # the optimum is inside the extended grid: nothing to widen
     assert record["grid_edges"]["a"]["edge"] is None and record["grid_edges"]["a"]["lower"] < 1e-6
     assert record["extended"]["a"][0] == pytest.approx(1e-3)  # first one grid step (a decade) past 1e-2
     assert record["grid_size"] == 25 and record["extension_points"] > 0
@@ -67,7 +72,7 @@ def test_extension_stops_at_the_declared_bound_and_says_so(train):
     params, record = select(method, train, Selection(kind="kfold", folds=3), np.random.default_rng(0))
     assert params["a"] == pytest.approx(1e-9)
     assert record["grid_edges"]["a"]["bound"] == pytest.approx(1e-9)
-    assert record["warnings"] == ["bowl: a = 1e-09 selected at its declared hard bound 1e-09 (searched [1e-09 .. 100]);"
+    assert grid_warnings(record) == ["bowl: a = 1e-09 selected at its declared hard bound 1e-09 (searched [1e-09 .. 100]);"
                                   " the search does not go past the bound"]
 
 
@@ -78,7 +83,7 @@ def test_a_grid_without_a_declared_bound_keeps_the_advice_to_widen_it(train):
 
     params, record = select(Unbounded(), train, Selection(kind="kfold", folds=3), np.random.default_rng(0))
     assert params["a"] == pytest.approx(1e-2) and "extended" not in record
-    assert record["warnings"] == ["bowl: a = 0.01 selected at the lower edge of its grid [0.01 .. 100]; the optimum "
+    assert grid_warnings(record) == ["bowl: a = 0.01 selected at the lower edge of its grid [0.01 .. 100]; the optimum "
                                   "may lie beyond it: widen the grid"]
 
 
@@ -125,7 +130,7 @@ def test_a_candidate_raising_on_one_fold_fails_alone_and_is_reported(train):
     assert {n["resample"] for n in notes} == {1} and all(n["point"]["a"] == 100.0 for n in notes)
     assert len(notes) == 5  # a = 100 with each of the five b values, on fold 1 only
     assert notes[0]["reason"] == "LinAlgError: matrix is singular for this a"
-    assert record["warnings"] == ["bowl: 5 candidate(s) failed on 5 resample fit(s) and were scored as failed there "
+    assert grid_warnings(record) == ["bowl: 5 candidate(s) failed on 5 resample fit(s) and were scored as failed there "
                                   "(e.g. a=100, b=1 on resample 1: LinAlgError: matrix is singular for this a)"]
     scores = record["table"].frame()
     failed = scores[(scores["param:a"] == 100.0) & (scores["resample"] == 0)]
@@ -147,3 +152,16 @@ def test_krls_lambda_at_the_grid_edge_is_searched_down_to_its_bound(train):
     params, record = select(method, train, Selection(kind="kfold", folds=3), np.random.default_rng(0))
     assert params["lambda"] < 100  # the extension left the grid downwards
     assert record["extended"]["lambda"][0] == pytest.approx(10.0)
+
+
+def test_a_method_no_better_than_the_mean_on_the_folds_is_told_so(train):
+    _, record = select(Bowl(), train, Selection(kind="kfold", folds=3), np.random.default_rng(0))
+    said = [w for w in record["warnings"] if "training mean" in w]
+    assert record["best_score"] >= record["mean_score"] > 0  # the bowl predicts the mean plus an offset >= 0
+    assert said == [f"bowl: no candidate scored better than the training mean on the selection's resamples (best mae "
+                    f"{record['best_score']:.4g} vs the mean's {record['mean_score']:.4g}): its model class or grid "
+                    "does not fit these data; expect no skill over the mean"]
+    _, fitted = select(KRLS(gamma_grid=(-2, 0, 3), lambda_grid=(-3, -1, 3)), train, Selection(kind="kfold", folds=3),
+                       np.random.default_rng(0))
+    assert fitted["best_score"] < 0.98 * fitted["mean_score"]
+    assert not any("training mean" in w for w in fitted.get("warnings", []))
