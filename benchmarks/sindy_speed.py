@@ -8,12 +8,16 @@ all training records. Two costs are timed on the same data, old against new:
   afresh, standardised by its own statistics) against ``"segment"`` (each record or piece
   standardised by itself and differentiated once per process: the folds' shared records and
   the final fit read the cache). Default TV derivatives (batched ADMM).
+- STLSQ fits of the grid's models on fold 1's training set (derivatives prepared before):
+  pysindy on every sample for every fit (``stlsq = "pysindy"``) against the library's Gram
+  matrix formed once per order and degree (``stlsq = "gram"``), order 1 and order 2 grids.
 - free runs of the grid's models on fold 1's validation block: one model at a time through
   ``simulate_batch`` (as ``Method.predict_grid`` did, calling ``predict`` per model) against
   ``SINDy.predict_grid``'s one time loop for every model (``simulate_candidates``); the largest
   relative difference between the two is printed (the grid's order-1 models, fitted once).
 
 Usage: python benchmarks/sindy_speed.py [--target t_cat] [--rows N] [--candidates N]
+       [--phases derivatives,fits,free-runs]
 (``--rows`` keeps the first N rows of every record for a quick run; ``--candidates`` times the
 old one-by-one free runs on the first N models only and scales their time to the grid.)
 Import the data first: ``enginebench datasets import bosch-gengine2 --from DIR``.
@@ -63,6 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--target", default="t_cat")
     ap.add_argument("--rows", type=int, default=0)
     ap.add_argument("--candidates", type=int, default=0)
+    ap.add_argument("--phases", default="derivatives,fits,free-runs")
     args = ap.parse_args(argv)
     ds = catalog.load("bosch-gengine2")
     train = make_samples(make_splits(ds, kind="published")[0].train, [args.target], "simulation")
@@ -75,8 +80,9 @@ def main(argv: list[str] | None = None) -> None:
           f"{FOLDS} folds fit on {', '.join(f'{len(f):,}' for f, _ in parts)} rows, validate on "
           f"{', '.join(f'{len(v):,}' for _, v in parts)}")
 
+    phases = set(args.phases.split(","))
     times = {}
-    for scale in ("training", "segment"):
+    for scale in ("training", "segment") if "derivatives" in phases else ():
         sindy_module._prepared.clear()
         clear_segment_cache()
         m = SINDy(derivative_scale=scale)
@@ -86,9 +92,34 @@ def main(argv: list[str] | None = None) -> None:
         m._prepare(train)
         times[scale] = time.perf_counter() - t0
         print(f"derivatives, 3 folds + final fit, derivative_scale={scale!r}: {times[scale]:.1f} s")
-    print(f"derivatives: {times['training'] / times['segment']:.2f}x faster")
+    if times:
+        print(f"derivatives: {times['training'] / times['segment']:.2f}x faster")
 
     fit, val = parts[0]
+    if "fits" in phases:
+        for order in (1, 2):
+            grid = [p for p in grid_points(SINDy().search_space(train)) if p["order"] == order]
+            took = {}
+            for route in ("pysindy", "gram"):
+                m = SINDy(stlsq=route)
+                prep = m._prepare(fit)
+                if order == 2:
+                    m._second_order(prep)
+                prep.memo.clear() if route == "gram" else None  # the Gram matrices are part of the timed work
+                if order == 2:
+                    m._second_order(prep)
+                t0 = time.perf_counter()
+                coefs = [m._fit_prepared(prep, fit, p).coef for p in grid]
+                took[route] = time.perf_counter() - t0
+                if route == "pysindy":
+                    ref = coefs
+            same = sum(np.array_equal(a != 0, b != 0) for a, b in zip(coefs, ref))
+            worst = max(float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)) for a, b in zip(coefs, ref))
+            print(f"STLSQ fits of the {len(grid)} order-{order} grid points on {len(fit):,} rows: pysindy "
+                  f"{took['pysindy']:.1f} s, Gram {took['gram']:.1f} s: {took['pysindy'] / took['gram']:.1f}x faster; "
+                  f"same terms in {same}/{len(grid)}, largest coefficient difference {worst:.1e} of the largest")
+    if "free-runs" not in phases:
+        return
     m = SINDy()
     grid = [p for p in grid_points(m.search_space(train)) if p["order"] == 1]
     fits = [f for _, f in sorted(m.fit_grid(fit, grid, np.random.default_rng(0)), key=lambda x: x[0])]
