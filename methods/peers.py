@@ -236,7 +236,7 @@ class SysIdentPyNARX(PeerMethod):
                message="{name}={value} must list degrees from 1 to 5"),
         orders("lags", None, "ylag = xlag: None = derived from {" + ", ".join(map(str, LAG_LADDER)) + "} within what "
                "the data carry", low=1, searches=("lags",), edges="high"),
-        whole("n_info_values", 50, "FROLS considers at most this many terms (the information criterion picks the "
+        whole("n_info_values", 30, "FROLS considers at most this many terms (the information criterion picks the "
               "count; a job warns when it kept falling up to this cap)", low=1),
         choice("info_criteria", "aic", "information criterion of FROLS's term count", INFO_CRITERIA,
                message="{name} must be one of " + ", ".join(INFO_CRITERIA) + ", got {value}"),
