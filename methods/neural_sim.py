@@ -10,8 +10,9 @@ way:
 - Training minimises the multi-step free-run (simulation) error: random subsections of
   ``horizon`` samples of the training records, each started from its own encoder window
   (the ``lags`` samples before it, edge-padded before a record's first row, as at
-  prediction time), mean squared standardised error over the subsection, Adam, gradient
-  norm clipped. A batch whose loss is not finite is skipped (counted in ``describe``).
+  prediction time), mean squared standardised error over the subsection, Adam with a
+  cosine decay of the learning rate to ``lr_final`` x lr over ``steps``, gradient norm
+  clipped. A batch whose loss is not finite is skipped (counted in ``describe``).
 - Early stopping: the last ``val_fraction`` of every training record is held out and
   simulated in free run from its own encoder window (the samples before it) every
   ``steps / validations`` gradient steps; the weights with the lowest free-run error are
@@ -76,11 +77,13 @@ def declaration(state_meaning: str, hidden_meaning: str) -> Declaration:
         whole("horizon", None, f"length T of the training subsections (free-run loss); None = {HORIZON_SAMPLES}, "
               "at most half the longest training record's fitting part", low=1, nullable=True, unit="samples"),
         whole("batch_size", 256, "training subsections per gradient step", low=1, unit="subsections"),
-        whole("hidden", 64, hidden_meaning, low=1, unit="units"),
+        whole("hidden", 32, hidden_meaning, low=1, unit="units"),
         whole("layers", 2, "hidden layers of each MLP (tanh)", low=1, unit="layers"),
         whole("steps", 3000, "most Adam steps (one batch of subsections each); early stopping may end sooner",
               low=1, unit="steps"),
-        positive("lr", 1e-3, "Adam learning rate (standardised signals)", unit="1"),
+        positive("lr", 1e-3, "Adam learning rate at the start (standardised signals)", unit="1"),
+        number("lr_final", 0.1, "learning rate at the last step as a fraction of lr (cosine decay over steps; "
+               "1 = constant)", low=0.0, high=1.0, low_open=True, unit="1"),
         number("val_fraction", 0.15, "held-out end of each training record for early stopping on its free-run "
                "error; 0 = none (the last weights are kept)", low=0.0, high=0.5, high_open=True, unit="1"),
         whole("validations", 30, "free-run validations over the run (every steps / validations steps)", low=1,
@@ -319,7 +322,8 @@ class NeuralSimulator(Method):
         o = self.options
         steps, batch = int(o["steps"]), min(int(o["batch_size"]), len(w.starts))
         every = max(1, steps // int(o["validations"]))
-        opt = torch.optim.Adam(net.parameters(), lr=float(o["lr"]))
+        lr, final = float(o["lr"]), float(o["lr_final"])
+        opt = torch.optim.Adam(net.parameters(), lr=lr)
         validate = len(w.val_starts) > 0
         best, best_state, best_step, stale = math.inf, None, 0, 0
         order, pos, epochs, skipped, last_loss, done = rng.permutation(w.starts), 0, 0, 0, math.nan, 0
@@ -334,6 +338,8 @@ class NeuralSimulator(Method):
             if not torch.isfinite(loss):
                 skipped += 1
             else:
+                for group in opt.param_groups:  # cosine from lr to lr x lr_final over the step budget
+                    group["lr"] = lr * (final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * (step - 1) / steps)))
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 nn.utils.clip_grad_norm_(net.parameters(), GRAD_CLIP)
@@ -355,8 +361,9 @@ class NeuralSimulator(Method):
         net.eval()
         return {"steps_run": done, "best_step": best_step if validate else done,
                 "epochs": round(epochs + pos / max(len(order), 1), 3), "skipped_steps": skipped,
-                "train_mse_last": last_loss, "validation_mse": best if validate else None,
-                "stopped_early": bool(validate and done < steps), "validation_history": history,
+                "train_mse_last": _finite(last_loss), "validation_mse": _finite(best) if validate else None,
+                "stopped_early": bool(validate and done < steps),
+                "validation_history": [[s, _finite(v)] for s, v in history],
                 "subsections": int(len(w.starts)), "batch_size": batch}
 
     # -- prediction ---------------------------------------------------------------------------
@@ -418,6 +425,11 @@ class NeuralSimulator(Method):
                                 "u_mean": fitted.u_mean.tolist(), "u_std": fitted.u_std.tolist()},
             "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
         }
+
+
+def _finite(value: float) -> float | None:
+    """``value``, or None when it is nan or inf (describe's output is stored as JSON)."""
+    return float(value) if math.isfinite(value) else None
 
 
 def _last_rows(values: np.ndarray, lags: int) -> np.ndarray:
