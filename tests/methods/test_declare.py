@@ -182,8 +182,10 @@ def test_methods_show_lists_every_option_with_its_meaning():
     lines = out.output.splitlines()
     head = next(i for i, line in enumerate(lines) if line.split()[:5] == ["option", "type", "default", "unit", "meaning"])
     table_ = lines[head + 1:head + 1 + len(KRLS.declared_options.fields)]
+    bounds = {"gamma_grid": "; extended at its edges, >= 1e-08 and <= 1e+06 (gamma)",
+              "lambda_grid": "; extended at its edges, >= 1e-14 and <= 1e+08 (lambda)"}
     for f, line in zip(KRLS.declared_options, table_):
-        assert line.split()[0] == f.name and line.rstrip().endswith(f.meaning)
+        assert line.split()[0] == f.name and line.rstrip().endswith(f.meaning + bounds.get(f.name, ""))
     assert any(line.split()[:3] == ["centres", "int", ">="] and " rows " in line for line in table_)
 
 
