@@ -1,12 +1,18 @@
-"""SINDy with control inputs: sparse polynomial ODEs fitted by pysindy, simulated open loop.
+"""SINDy with control inputs: sparse polynomial ODEs (pysindy's library, STLSQ), simulated open loop.
 
-The state is the target(s) and the control is the run-time inputs, both standardised
-with training statistics. Derivatives come from a regularised differentiator of the
-``derivative`` package (through pysindy's ``SINDyDerivative`` wrapper), computed once
-per training set and shared by every grid point. Prediction never calls pysindy's
-``simulate`` (one scipy ``solve_ivp`` per segment); it steps every segment at once with
-a fixed-step integrator (RK4 or Euler at the data's sample period, inputs held between
-samples). A trajectory that goes non-finite or leaves a bounded envelope around the
+The state is the target(s) (order 1) or the targets and their time derivatives (order 2:
+d2y/dt2 = Theta(y, y', u) xi, which can oscillate; d(y)/dt = y' is kinematic), the
+control is the run-time inputs, all standardised with training statistics; ``orders``
+searches both by default and selection keeps the order whose free run is better.
+Derivatives come from a regularised differentiator of the ``derivative`` package, by
+default on each segment standardised by itself (``derivative_scale = "segment"``), so a
+record shared by the k-fold training sets and the final fit is differentiated once per
+process; the standardised set is prepared once per training set and shared by every grid
+point. STLSQ runs on the library's Gram matrix, formed once per order and degree
+(``stlsq = "gram"``; ``"pysindy"`` fits every point on the samples). Prediction never calls
+pysindy's ``simulate`` (one scipy ``solve_ivp`` per segment); every model of the grid and
+every segment are stepped together (``sindy_grid.simulate_candidates``) by a fixed-step
+integrator (RK4 or Euler at the data's sample period, inputs held between samples). A trajectory that goes non-finite or leaves a bounded envelope around the
 training range is stopped, held at its last in-envelope value and flagged diverged
 (seed 003 reports SINDy blow-ups; they must be counted, never silently dropped).
 
@@ -34,7 +40,9 @@ warnings).
 
 State initialisation: a segment with an initialisation window (``y_init``, N measured
 outputs) is simulated from its last sample, row N - 1, so the model starts from the most
-recent measured state; without one, from y0 at row 0.
+recent measured state; without one, from y0 at row 0. A second-order model also needs
+dy/dt there: the window's derivative at its last sample, by the training differentiator
+(a window of 2 samples: their difference; y0 alone: 0, a start at rest).
 """
 
 from __future__ import annotations
