@@ -70,7 +70,8 @@ def runs_show(run_ref: str, store) -> None:
     run = open_run(run_ref, store)
     info, cfg, env = run.info(), run.config(), run.environment()
     plugins = run.plugins() or []
-    metrics = run.metrics() if run.job_files() else None  # read first: a damaged job file is the only line printed
+    # read first: a damaged job file (or jobs folder) is the only line printed
+    metrics = run.metrics() if run.job_files() or run.damage() else None
     notes = run_note_lines(run)
     click.echo(f"run {run.id}: {info.get('status')} ({len(run.job_files())}/{info.get('n_jobs')} jobs, "
                f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")

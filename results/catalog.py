@@ -179,6 +179,14 @@ def _created(run: Run, info: dict[str, Any]) -> datetime | None:
         return None
 
 
+def _job_count(run: Run) -> int:
+    """Job files present; 0 when the jobs folder cannot be read (``Run.damage`` says why)."""
+    try:
+        return len(run.job_files())
+    except OSError:
+        return 0
+
+
 def entry(run: Run, now: datetime | None = None) -> Entry:
     """The catalogue entry of ``run``; never raises for a damaged run folder (its status is ``damaged``)."""
     now = now or datetime.now(timezone.utc)
@@ -200,7 +208,7 @@ def entry(run: Run, now: datetime | None = None) -> Entry:
     return Entry(
         id=run.id, status="damaged" if damage else status, name=str(info.get("name", cfg.get("name", ""))),
         dataset=str(cfg.get("dataset", "")), methods=tuple(str(m) for m in cfg.get("methods", []) or []),
-        used=tuple(methods_used(cfg)), jobs_done=len(run.job_files()), jobs_total=total if isinstance(total, int) else None,
+        used=tuple(methods_used(cfg)), jobs_done=_job_count(run), jobs_total=total if isinstance(total, int) else None,
         failed_jobs=failed, created=_created(run, info), wall_s=float(wall) if isinstance(wall, (int, float)) else None,
         tags={str(k): str(v) for k, v in tags.items()}, damage=damage,
     )

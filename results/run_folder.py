@@ -15,9 +15,13 @@ Every file is written atomically (``results.atomic``) under the run's write lock
 
 Faults handled here:
 
-* a damaged run folder (run.json, config.toml or environment.json missing or
-  unreadable): ``Run.damage()`` says why, ``runs list`` shows it as damaged, and
-  ``latest`` is the newest run that is *not* damaged; reading it by id is one line;
+* a damaged run folder (run.json, config.toml or environment.json missing, unreadable
+  (permission denied, a folder or a dangling link in its place, bytes that are not UTF-8),
+  not valid JSON/TOML or with a garbled field; jobs/ missing, not a folder or unreadable;
+  the run folder itself unreadable): ``Run.damage()`` says why and never raises, ``runs
+  list`` shows it as damaged with that reason, and ``latest`` is the newest run that is
+  *not* damaged, so one such folder never stops a command for the whole store; reading
+  it by id is one line;
 * plugin files: a new run records the path and SHA-256 of every plugin file providing
   one of its methods (``plugins`` in run.json); ``Run.check_plugins`` refuses to resume
   or re-fit a run whose plugin files are absent, changed, not loaded, or new.
@@ -204,11 +208,18 @@ class Run:
         return self._read_object("environment.json")
 
     def damage(self) -> str | None:
-        """Why this run folder is damaged (a required file missing or unreadable), or None when it is whole."""
+        """Why this run folder is damaged (a required file missing or unreadable, its jobs folder missing, not a
+        folder or unreadable), or None when it is whole; never raises."""
         for name in REQUIRED_FILES:
             data = self._load_object(name)
             if isinstance(data, str):
                 return f"{name} {data}"
+        try:
+            if not self.jobs_dir.is_dir():
+                return "jobs/ is " + ("not a folder" if os.path.lexists(self.jobs_dir) else "missing")
+            os.listdir(self.jobs_dir)
+        except OSError as exc:
+            return f"jobs/ is unreadable ({damage_text(exc)})"
         return None
 
     # -- the write lock (results.run_lock) ------------------------------------------
@@ -448,6 +459,9 @@ class Run:
     def metrics(self) -> pd.DataFrame:
         """All metric rows of all finished jobs (one long frame); a damaged job file is refused by name."""
         files = self.job_files()
+        why = None if files else self.damage()
+        if why is not None:
+            raise StoreError(f"run {self.id}: {why}; the run folder is damaged (`enginebench runs rm {self.id}` removes it)")
         if not files:
             raise StoreError(f"run {self.id} has no finished job yet")
         return pd.concat([self._read_job(p)[0] for p in files], ignore_index=True)

@@ -25,7 +25,13 @@ folders directly inside the store. Two processes creating runs at once: run fold
 atomic ``mkdir`` (a taken name gets the next free ``-k`` suffix), so run ids are distinct
 and no run writes into another's folder; ``latest`` is the run created last
 (``created_ns`` in run.json, then the id), whatever the ids' spelling, among the runs
-that are not damaged.
+that are not damaged. One unreadable run folder (run.json or another required file
+missing, a folder or a link loop in its place, permission denied, bytes that are not
+UTF-8, not JSON; jobs/ missing or not a folder; the folder itself unreadable) never
+breaks a command for the whole store: ``runs`` lists it (a folder with anything named
+run.json, or one this process may not look into, is a run), ``Run.damage`` says why
+without raising, ``runs list`` shows it as damaged with that reason, and ``latest``
+skips it.
 """
 
 from __future__ import annotations
@@ -83,17 +89,22 @@ def _created_ns(run: Run) -> int:
 
 
 def _looks_like_run(path: Path) -> bool:
-    """A run folder: it has a run.json, or (a damaged one) a run's other parts and is not being created now."""
-    if not path.is_dir() or path.is_symlink() and not (path / "run.json").is_file():
-        return False
-    if (path / "run.json").is_file():
-        return True
-    parts = any((path / name).exists() for name in ("config.toml", "environment.json", "jobs"))
+    """A run folder: it has a run.json (or something else under that name: a folder, a dangling link, which
+    ``Run.damage`` reports), or (a damaged one) a run's other parts and is not being created now. A folder of the
+    store this process may not look into (permission denied) is listed too, as damaged."""
     try:
-        settled = time.time() - path.stat().st_mtime > CREATING_S
-    except OSError:
+        if not path.is_dir():
+            return False
+        if path.is_symlink():
+            return (path / "run.json").is_file()
+        if (path / "run.json").is_file() or os.path.lexists(path / "run.json"):
+            return True
+        parts = any((path / name).exists() for name in ("config.toml", "environment.json", "jobs"))
+        return parts and time.time() - path.stat().st_mtime > CREATING_S
+    except FileNotFoundError:  # removed while the store was read
         return False
-    return parts and settled
+    except OSError:
+        return True
 
 
 CREATING_S = 60.0

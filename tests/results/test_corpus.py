@@ -480,6 +480,10 @@ DAMAGES = {
     "job-truncated": (lambda r: _truncate(_first_job(r)), "damaged"),
     "job-garbage": (lambda r: _first_job(r).write_bytes(b"PAR1" + b"\x00" * 64 + b"PAR1"), "damaged"),
     "jobs-none": (lambda r: [p.unlink() for p in (r / "jobs").glob("*.parquet")], "no finished job"),
+    "run-json-folder": (lambda r: ((r / "run.json").unlink(), (r / "run.json").mkdir()), "run.json"),
+    "run-json-not-utf8": (lambda r: (r / "run.json").write_bytes(b'{"id": "\xff\xfe"}'), "run.json"),
+    "config-folder": (lambda r: ((r / "config.toml").unlink(), (r / "config.toml").mkdir()), "config.toml"),
+    "jobs-not-folder": (lambda r: (shutil.rmtree(r / "jobs"), (r / "jobs").write_text("x")), "jobs/ is not a folder"),
 }
 for _id, (_fn, _expect) in DAMAGES.items():
     for _verb in (["table", "{run}"], ["runs", "show", "{run}"], ["compare", "{run}", "{run}"],
