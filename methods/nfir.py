@@ -52,7 +52,8 @@ from enginebench.declare import whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Params, SearchSpace, SegmentPredictions, split_rows
-from enginebench.methods.numerics.kernels import Spectral, check_positive, gaussian, sq_distances
+from enginebench.methods.numerics.kernel_grid import kernel_ridge_grid
+from enginebench.methods.numerics.kernels import check_positive, gaussian, sq_distances
 from enginebench.methods.input_history import HISTORY_OPTIONS, InputHistory
 from enginebench.methods.krls import GAMMA_BOUND, LAMBDA_BOUND, KRLS, KRLSFitted
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
@@ -204,15 +205,7 @@ class NFIR(InputHistory, KRLS):
                 continue
             scaler, Xs, yc, y_mean, y_scale = self._train_arrays(sub)
             Xe = scaler.transform(self.lagged(data, lags, eval_cols).X)
-            D_train = sq_distances(Xs)
-            for gamma in dict.fromkeys(gammas.tolist()):
-                idx = np.flatnonzero(gammas == gamma)
-                spectral = Spectral.from_kernel(gaussian(D_train, gamma), overwrite=True)
-                # dual coefficients of every lambda, (n, L * k): K_eval @ alpha is cheaper than K_eval @ V
-                alpha = spectral.lift(spectral.ridge_coeffs(spectral.project(yc), lambdas[idx])).reshape(len(Xs), -1)
-                target = np.asarray(members)[idx]
-                for a in range(0, len(Xe), PREDICT_CHUNK):
-                    K = gaussian(sq_distances(Xe[a:a + PREDICT_CHUNK], Xs), gamma)
-                    block = (K @ alpha).reshape(len(K), len(idx), k_out)
-                    out[target, a:a + PREDICT_CHUNK] = np.moveaxis(block, 1, 0) * y_scale + y_mean
+            target = np.asarray(members)
+            for idx, block in kernel_ridge_grid(Xs, yc, Xe, gammas, lambdas, PREDICT_CHUNK):
+                out[target[idx]] = block * y_scale + y_mean
         return out

@@ -111,6 +111,21 @@ def test_predict_grid_equals_fitting_each_point(data):
         np.testing.assert_allclose(out[i], np.concatenate(m.predict(fitted, test.without_targets())), rtol=1e-7, atol=1e-9)
 
 
+def test_predict_grid_over_derived_horizons_equals_each_point_to_1e_9(data):
+    """The shared-work grid path (per lag set the distances once, per gamma one solver call for every lambda)
+    predicts what fitting each point alone predicts, over every derived horizon and gamma."""
+    train, test = data
+    m = NFIR(gamma_grid=(-3, 0, 4), lambda_grid=(-3, 0, 4), max_rows=120)
+    grid = grid_points(m.search_space(train))
+    assert len({p["horizon"] for p in grid}) >= 2 and len(grid) >= 32
+    view = test.without_targets()
+    out = m.predict_grid(train, view, grid, np.random.default_rng(5))
+    scale = np.abs(np.concatenate([s.y for s in test.segments])).max()
+    for i, params in enumerate(grid):
+        alone = np.concatenate(m.predict(m.fit(train, params, np.random.default_rng(5)), view))
+        np.testing.assert_allclose(out[i], alone, rtol=0, atol=1e-9 * scale)
+
+
 def test_fit_is_deterministic_under_a_seed(data):
     train, test = data
     m = NFIR(max_rows=100)
