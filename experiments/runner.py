@@ -31,6 +31,7 @@ from enginebench.experiments.search import check_search
 from enginebench.experiments.selection import record_blocks
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.methods import registry
+from enginebench.methods.base import TrainingShape
 from enginebench.results.store import ResumeState, Run, RunStore
 
 ProgressFn = Callable[[int, int, Job], None]
@@ -131,8 +132,11 @@ def prepare(spec: ExperimentSpec) -> Context:
             problems[(JOINT, window, split)] = Problem(train=pools.pop("train"), parts=pools)
     check_protocol(spec, problems)
     for raw in {id(r["train"]): r["train"] for r in raws.values()}.values():
+        shape = TrainingShape(records=tuple(len(s.t) for s in raw.segments), inputs=tuple(raw.inputs),
+                              targets=tuple(spec.targets), dt=float(raw.dt), mode=spec.mode)
         for method in methods.values():
             method.check_columns(list(raw.inputs), list(raw.internals), list(spec.targets))
+            method.check_data(shape)
     return Context(spec=spec, dataset=name, problems=problems, methods=methods, dataset_hash=dataset_hash)
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import itertools
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Iterator, Mapping, Sequence
 
 import numpy as np
@@ -44,6 +44,33 @@ def grid_points(space: SearchSpace) -> list[dict[str, Any]]:
     """Every point of the product grid, in a fixed order (last name varies fastest)."""
     names = list(space)
     return [dict(zip(names, values)) for values in itertools.product(*(space[n] for n in names))]
+
+
+@dataclass(frozen=True)
+class TrainingShape:
+    """What ``Method.check_data`` is told of one split's training part, before the first job."""
+
+    records: tuple[int, ...]
+    """Samples of each training record (the raw records: a method's lags run inside each of them)."""
+    inputs: tuple[str, ...]
+    targets: tuple[str, ...]
+    dt: float
+    """The sample period (s)."""
+    mode: str
+
+    @property
+    def longest(self) -> int:
+        return max(self.records, default=0)
+
+    def rows_after(self, lags: int) -> int:
+        """Samples of the records that have ``lags`` earlier samples inside their own record."""
+        return sum(max(0, n - lags) for n in self.records)
+
+    def describe(self) -> str:
+        """The records in words, for a message: "3 training records of at most 120 samples (360 in all)"."""
+        n = len(self.records)
+        return (f"{n} training record{'s' if n != 1 else ''} of at most {self.longest} samples "
+                f"({sum(self.records)} in all)")
 
 
 class Method:
@@ -120,6 +147,11 @@ class Method:
     def check_columns(self, inputs: Sequence[str], internals: Sequence[str], targets: Sequence[str]) -> None:
         """Optional hook, called before the first job: MethodError when an option names a column the experiment's
         data do not have in that role (so the mistake is one line up front, not a failed job per repetition)."""
+
+    def check_data(self, shape: TrainingShape) -> None:
+        """Optional hook, called before the first job with the shape of each split's training part: MethodError
+        when an option asks for more than those data can carry (lags longer than the records), so the mistake is
+        one line up front, not a failed job per repetition."""
 
     def search_space(self, data: Samples) -> SearchSpace:
         """Candidate hyperparameters; an empty space means nothing to select."""

@@ -169,6 +169,27 @@ class Cascade(Method):
             raise MethodError(f"method {self.name!r}: the intermediate {clash[0]!r} is also the target; "
                               "cascade an intermediate into a different target")
 
+    def check_columns(self, inputs: Sequence[str], internals: Sequence[str], targets: Sequence[str]) -> None:
+        """Options ``intermediate`` and ``surrogates`` name internal columns or run-time inputs of the data (with
+        ``source = "true"`` an intermediate must be a run-time input), never a target; checked before the first job."""
+        for key, names in (("intermediate", self.intermediates), ("surrogates", self.surrogates)):
+            for n in names:
+                if n in targets:
+                    raise MethodError(f"method {self.name!r}: option {key} names {n!r}, which is also the target; "
+                                      f"cascade through a column other than the target")
+                if n not in inputs and n not in internals:
+                    raise MethodError(
+                        f"method {self.name!r}: option {key} names {n!r}, which is not a column of the data (run-time "
+                        f"inputs: {', '.join(inputs) or 'none'}; internal columns: {', '.join(internals) or 'none'}); "
+                        f"name one of them, or give {n} the role 'internal' (roles = {{ {n} = \"internal\" }})")
+        if self.options["source"] == "true":
+            absent = [n for n in self.intermediates if n not in inputs]
+            if absent:
+                raise MethodError(
+                    f"method {self.name!r} feeds the measured {absent[0]} at prediction (ideal baseline, not available "
+                    f"at run time), so {absent[0]} must be a run-time input of the experiment; here it is internal: "
+                    f"set roles = {{ {absent[0]} = \"input\" }} in an experiment of its own")
+
     def _fit_upstream(self, train: Samples, name: str, rng: np.random.Generator, surrogate: bool = False) -> UpstreamFitted:
         """Fit the model of one intermediate (or, with ``surrogate``, the NFIR of one surrogate) on ``train``."""
         if surrogate:

@@ -20,13 +20,16 @@ same way:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from enginebench.datasets.samples import Samples, SegmentSamples
 from enginebench.declare import Field, Invalid, is_number, positive
 from enginebench.errors import MethodError
+
+if TYPE_CHECKING:
+    from enginebench.methods.base import TrainingShape
 
 
 @dataclass(frozen=True)
@@ -151,6 +154,26 @@ class GivenOrders:
     def given_orders(self) -> dict[str, list[int] | None]:
         return {key: as_orders(self.options[key]) for key in ("na", "nb", "nk")}
 
+    def check_data(self, shape: "TrainingShape") -> None:
+        """A given ``na``, ``nb`` or ``nk`` the training records cannot carry is refused before the first job: one
+        whose lags leave no more rows (samples with that many earlier ones inside their record) than the model has
+        coefficients at least (the lags' own plus a constant), so that every fit of it would fail."""
+        top = carried_lags(shape)
+        for key, values in self.given_orders.items():
+            bad = [v for v in values or [] if v > top]
+            if not bad:
+                continue
+            v = bad[-1]
+            asks = f"delays the inputs by {v} samples" if key == "nk" else f"asks for {v} lags"
+            todo = (f"use {key} of at most {top}, or longer records" if top else
+                    "no lag fits these records: use longer ones")
+            raise MethodError(
+                f"method {getattr(self, 'name', '?')!r}: option {key} = {self.options[key]!r} {asks}, but the "
+                f"{shape.describe()} have {shape.rows_after(v)} samples with {v} earlier ones in their record, fewer "
+                f"than the {v + 1} coefficients such a model has at least; {todo}"
+                + ("" if key == "nk" else f" (or leave {key} out to derive the grid from the data)")
+            )
+
     def order_space(self, data: Samples, cap: int, base: Sequence[int], tied: str) -> dict[str, np.ndarray]:
         """The lag part of the search space: ``tied`` (na = nb) on the grid the training data carry
         (``derived_orders`` up to ``cap`` from ``base``) unless na or nb is given; else na and nb,
@@ -196,6 +219,18 @@ def orders(name: str, default: object, meaning: str, low: int = 0, high: int | N
 ENVELOPE = positive("envelope", 10.0, "divergence: a simulated output leaving [min - e span, max + e span] of the "
                     "training outputs is held there and the segment counted as diverged")
 """The ``envelope`` option of the free-run methods."""
+
+
+def carried_lags(shape: "TrainingShape") -> int:
+    """The most lags L whose regression rows (samples with L earlier ones in their record) outnumber them (0: none)."""
+    low, high = 0, shape.longest  # rows_after(L) - L falls as L grows: bisect for the last L where it is > 0
+    while low < high:
+        mid = (low + high + 1) // 2
+        if shape.rows_after(mid) > mid:
+            low = mid
+        else:
+            high = mid - 1
+    return low
 
 
 def carried_order(n_shortest: int, n_rows: int, n_inputs: int, cap: int) -> int:

@@ -245,6 +245,23 @@ EXPERIMENT_MUTATIONS: dict[str, tuple[dict, str]] = {
     "method-option-baseline": ({"methods": {"naive-mean": {"foo": 1}}}, "foo"),
     "method-options-not-table": ({"methods": {"naive-mean": 3}}, "[methods.NAME]"),
     "method-mode-unsupported": ({"mode": "simulation", "train_size": 0, "methods": {"krls": {}}}, "krls"),
+    # options that name a column, or lags the records cannot carry: refused before the first job (issue 32, item 6)
+    "cascade-intermediate-unknown": ({"mode": "simulation", "train_size": 0, "methods": {"cascade": {
+        "intermediate": "nope"}}}, "method 'cascade': option intermediate names 'nope', which is not a column of the "
+                                   "data (run-time inputs: u1, u2; internal columns: none)"),
+    "cascade-intermediate-target": ({"mode": "simulation", "train_size": 0, "methods": {"cascade": {
+        "intermediate": "y"}}}, "method 'cascade': option intermediate names 'y', which is also the target"),
+    "cascade-surrogate-unknown": ({"mode": "simulation", "train_size": 0, "methods": {"cascade": {
+        "intermediate": "u1", "surrogates": ["nope"]}}}, "option surrogates names 'nope', which is not a column"),
+    "arx-na-beyond-records": ({"mode": "simulation", "train_size": 0, "methods": {"arx": {"na": [5000]}}},
+                              "method 'arx': option na = [5000] asks for 5000 lags, but the 3 training records of at "
+                              "most 120 samples (360 in all) have 0 samples"),
+    "arx-grid-beyond-records": ({"mode": "simulation", "train_size": 0, "methods": {"arx": {"nb": [1, 2, 100]}}},
+                                "option nb = [1, 2, 100] asks for 100 lags"),
+    "arx-nk-beyond-records": ({"mode": "simulation", "train_size": 0, "methods": {"arx": {"nk": 400}}},
+                              "option nk = 400 delays the inputs by 400 samples"),
+    "narx-na-beyond-records": ({"mode": "simulation", "train_size": 0, "methods": {"narx": {"na": 500}}},
+                               "method 'narx': option na = 500 asks for 500 lags"),
 }
 for _id, (_change, _expect) in EXPERIMENT_MUTATIONS.items():
     def _setup(w, d, s, change=_change):
