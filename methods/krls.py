@@ -20,8 +20,8 @@ from enginebench.declare import Declaration, choice, flag, text, whole
 from enginebench.declare import log_grid as grid
 from enginebench.errors import MethodError
 from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
-from enginebench.methods.numerics.kernels import (check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
-                                         standardize_rows)
+from enginebench.methods.numerics.kernels import (check_positive, gaussian, gaussian_apply, make_scaler,
+                                         power_of_two_scale, sq_distances, standardize_rows)
 from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import ridge_solutions
 
@@ -184,13 +184,6 @@ class KRLS(Method):
         out *= y_scale
         out += y_mean
         return out
-
-
-def power_of_two_scale(y: np.ndarray) -> np.ndarray:
-    """Per column, the power of two nearest above its largest |value| (1 for an all-zero or non-finite column)."""
-    top = np.max(np.abs(y), axis=0) if len(y) else np.zeros(y.shape[1])
-    exponent = np.frexp(np.where(np.isfinite(top) & (top > 0), top, 1.0))[1]
-    return np.ldexp(1.0, exponent)
 
 
 def gamma_kernels(Xs: np.ndarray, Xe: np.ndarray, gammas: np.ndarray, groups: RowGroups | None

@@ -23,13 +23,36 @@ NEGATIVE_EIG_RTOL = 1e-8
 """Eigenvalues below -NEGATIVE_EIG_RTOL * max|s| mean the matrix is not a kernel matrix."""
 
 
+def power_of_two_scale(y: np.ndarray) -> np.ndarray:
+    """Per column, the power of two nearest above its largest |value| (1 for an all-zero or non-finite column)."""
+    top = np.max(np.abs(y), axis=0) if len(y) else np.zeros(y.shape[1])
+    exponent = np.frexp(np.where(np.isfinite(top) & (top > 0), top, 1.0))[1]
+    return np.ldexp(1.0, exponent)
+
+
 def make_scaler(X: np.ndarray, standardize: bool = True) -> StandardScaler:
     """A scaler fitted on training features: zero mean, unit std (std 0 -> 1), or the identity.
 
+    The mean and std are computed on each column divided by a power of two near its largest
+    |value| and multiplied back: exact steps, so features of any scale (1e-200, whose squares
+    underflow, or 1e200, whose squares overflow) are standardised to the same numbers as at
+    scale 1, and features of ordinary scale to the very numbers ``StandardScaler`` gives (a
+    constant column, whose std StandardScaler replaces by 1, is divided by that power of two
+    instead, so its rounding residue is as small at every scale).
     With ``standardize=False`` the returned scaler leaves features unchanged, so fitted
     models always carry a scaler and the prediction path is the same either way.
     """
-    return StandardScaler(with_mean=standardize, with_std=standardize).fit(X)
+    scaler = StandardScaler(with_mean=standardize, with_std=standardize)
+    if not standardize:
+        return scaler.fit(X)
+    X = np.asarray(X, dtype=np.float64)
+    p = power_of_two_scale(X) if X.ndim == 2 else np.ones(0)
+    scaler.fit(X / p)
+    with np.errstate(over="ignore", under="ignore"):  # var_ is informative only: transform reads mean_ and scale_
+        scaler.var_ = scaler.var_ * p * p
+    scaler.mean_ = scaler.mean_ * p
+    scaler.scale_ = scaler.scale_ * p
+    return scaler
 
 
 def standardize_rows(scaler: StandardScaler, blocks: Sequence[np.ndarray], extra: np.ndarray | None = None

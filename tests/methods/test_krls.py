@@ -500,3 +500,35 @@ def test_a_bootstrap_resamples_repeated_rows_are_solved_once(monkeypatch) -> Non
     monkeypatch.setattr(krls_module, "RowGroups", type("Off", (), {"of": staticmethod(lambda X: None)}))
     full = m.predict_grid(boot, TEST, grid, RNG)
     np.testing.assert_allclose(merged, full, rtol=0, atol=1e-10 * np.abs(full).max())
+
+
+def _inputs_times(ds: Dataset, factor: float) -> Dataset:
+    frame = ds.frame.copy()
+    for c in ("x1", "x2", "x3"):
+        frame[c] = frame[c] * factor
+    return replace(ds, frame=frame)
+
+
+@pytest.mark.parametrize("factor", [1e-200, 1e-170, 3e-160, 1e150, 1e200])
+def test_inputs_of_any_scale_give_the_predictions_of_scale_one(factor: float) -> None:
+    """Standardisation of the inputs underflowed below ~1e-154 (their squares) and overflowed above ~1e154: the
+    variance went to 0 or inf, the scaler kept 1 or nan, and the kernel saw all rows alike. Inputs times 1e-200
+    now predict what the inputs do, to 1e-9, in fit/predict and in the grid path alike."""
+    train = make_samples(_inputs_times(_dataset(1), factor), ["y1", "y2"])
+    test = make_samples(_inputs_times(_dataset(2, sizes=(30, 25)), factor), ["y1", "y2"]).without_targets()
+    m = KRLS(gamma_grid=(-2, 1, 4), lambda_grid=(-4, 0, 3))
+    for gamma, lam in [(0.1, 1.0), (1.0, 1e-4)]:
+        np.testing.assert_allclose(_fit_predict(m, train, test, gamma, lam), _fit_predict(m, TRAIN, TEST, gamma, lam),
+                                   rtol=1e-9, atol=0)
+    grid = grid_points(m.search_space(TRAIN))
+    np.testing.assert_allclose(m.predict_grid(train, test, grid, RNG), m.predict_grid(TRAIN, TEST, grid, RNG),
+                               rtol=1e-9, atol=0)
+
+
+def test_the_scaler_of_ordinary_inputs_is_standard_scalers_bit_for_bit() -> None:
+    from enginebench.methods.numerics.kernels import make_scaler
+
+    X = np.random.default_rng(5).normal(3.0, 2.0, (40, 4)) * [1e-3, 1.0, 7.0, 1e4]
+    ours, theirs = make_scaler(X), StandardScaler().fit(X)
+    np.testing.assert_array_equal(ours.transform(X), theirs.transform(X))
+    np.testing.assert_array_equal(ours.scale_, theirs.scale_)
