@@ -180,7 +180,9 @@ class NFIR(InputHistory, KRLS):
     def predict_grid(
         self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> np.ndarray:
-        """Every grid point, (n_grid, n_rows, k): per lag set one scaling, per gamma one eigendecomposition.
+        """Every grid point, (n_grid, n_rows, k): per lag set one scaling and one set of distances, per gamma one
+        ``ridge_solutions`` call for all its lambdas (``numerics/kernel_grid.py``; 2-3x faster than the
+        eigendecomposition per gamma it replaced, ``benchmarks/nfir_selection.py``).
 
         The kernel rows are drawn once, so every grid point is fitted on the same rows.
         """
