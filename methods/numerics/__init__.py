@@ -7,5 +7,7 @@ integrator (RK4 / Euler) with the divergence envelope every simulating method sh
 ``device``: the CPU/CUDA choice of torch-based solvers. ``kernels``: the Gaussian kernel,
 its blocked application and the feature scaling shared by the kernel methods; ``shifted``:
 ridge and shifted-system solutions for a whole grid from one factorisation per gamma
-(KRLS, MTL-KRLS); ``falkon``: the large-scale Nystroem + conjugate-gradient solver.
+(KRLS, MTL-KRLS); ``kernel_grid``: a (lag set, gamma, lambda) grid's predictions from one
+distance matrix per lag set and ``shifted``'s solver per gamma (NFIR); ``lag_gram``: the
+Gram matrix of the longest lags shared by an ARX order grid; ``falkon``: the large-scale Nystroem + conjugate-gradient solver.
 """
