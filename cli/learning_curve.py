@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from enginebench.cli.options import check_output, load_plugins, plugin_option, store_option
 from enginebench.cli.progress import JobProgress
+
+if TYPE_CHECKING:
+    from enginebench.results.store import Run
 
 
 @click.command("learning-curve")
@@ -38,13 +42,13 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
 
     Every amount is scored on the experiment's unchanged test part, with its
     repetitions, subsampling and model selection. The jobs are stored as one run
-    (splits read 'test@3mo'; an interrupted curve finishes with `enginebench run --resume
-    RUN`); the table prints the test metric's mean and Student-t 95% interval per
+    (splits read 'test@3mo'; an interrupted curve, stopped by Ctrl-C or SIGTERM, prints the
+    command that finishes it, `enginebench run --resume RUN`, which ends with the same table
+    and plot); the table prints the test metric's mean and Student-t 95% interval per
     amount, and a PNG plot is written when matplotlib is installed.
     """
-    from enginebench.experiments.learning_curve import (
-        PLOT_FILE, SUMMARY_FILE, curve_table, parse_months, plot_curve, run_learning_curve, summarize_curve,
-    )
+    from enginebench.cli.run import echo_resume_hint, stop_on_sigterm
+    from enginebench.experiments.learning_curve import parse_months, run_learning_curve
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore
 
@@ -60,23 +64,41 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     spec = spec.with_overrides(repetitions=repeats, train_size=train_size, methods=chosen,
                                method_options={k: v for k, v in spec.method_options.items() if k in chosen})
-    with JobProgress(f"{spec.name} learning curve: preparing",
-                     lambda job: f"{spec.name}: {job.split} {job.method} r{job.repetition}", quiet) as bar:
-        result = run_learning_curve(spec, amounts, RunStore(store), rows=rows, workers=workers,
-                                    plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar,
-                                    executor=executor or ("dask" if scheduler else "local"), scheduler=scheduler)
-    summary = (result.run.read_table(SUMMARY_FILE) if metric == "mae"
-               else summarize_curve(result.run.metrics(), metric=metric))
-    click.echo(f"Learning curve of {spec.name} ({spec.dataset}, {spec.mode}); amounts: "
-               + ", ".join(f"{a.months:g} mo = {sum(a.hours.values()):.1f} h logged"
-                           + (" (the whole training period)" if a.whole else "") for a in result.amounts))
-    click.echo(curve_table(summary), nl=False)
+    store_obj = RunStore(store)
+    known = {r.id for r in store_obj.runs()}
+    stop_on_sigterm()
+    try:
+        with JobProgress(f"{spec.name} learning curve: preparing",
+                         lambda job: f"{spec.name}: {job.split} {job.method} r{job.repetition}", quiet) as bar:
+            result = run_learning_curve(spec, amounts, store_obj, rows=rows, workers=workers,
+                                        plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar,
+                                        executor=executor or ("dask" if scheduler else "local"), scheduler=scheduler)
+    except (KeyboardInterrupt, SystemExit):
+        echo_resume_hint(store_obj, known)
+        raise
     if result.n_failed:
         click.echo(f"{result.n_failed} of {result.n_jobs} jobs failed; they are counted in n_failed.")
-    written = plot_curve(summary, plot_path or result.run.path / PLOT_FILE) if not summary.empty else None
+    echo_curve(result.run, metric, plot_path)
+
+
+def echo_curve(run: Run, metric: str = "mae", plot_path: str | Path | None = None) -> None:
+    """Print a finished learning-curve run's amounts and table, draw its plot (default: in the run folder) and
+    name the run: the end of ``learning-curve``, and of ``run --resume`` of a curve."""
+    from enginebench.experiments.learning_curve import PLOT_FILE, SUMMARY_FILE, curve_table, plot_curve, summarize_curve
+
+    cfg = run.config()
+    stored = metric == "mae" and (run.path / SUMMARY_FILE).exists()
+    summary = run.read_table(SUMMARY_FILE) if stored else summarize_curve(run.metrics(), metric=metric)
+    amounts = run.info().get("amounts") or []
+    click.echo(f"Learning curve of {cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')}); amounts: "
+               + ", ".join(f"{a['months']:g} mo = {sum(a['hours'].values()):.1f} h logged"
+                           + (" (the whole training period)" if a.get("whole_training_period") else "")
+                           for a in amounts))
+    click.echo(curve_table(summary), nl=False)
+    written = plot_curve(summary, plot_path or run.path / PLOT_FILE) if not summary.empty else None
     if written is None:
         click.echo("plot skipped: matplotlib is not installed (pip install matplotlib)" if not summary.empty
                    else "plot skipped: nothing finished")
     else:
         click.echo(f"plot: {written}")
-    click.echo(f"run {result.run.id} stored in {result.run.path}")
+    click.echo(f"run {run.id} stored in {run.path}")

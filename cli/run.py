@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.console import Console
 
 from enginebench.cli.options import load_plugins, plugin_option, store_option
 from enginebench.cli.progress import JobProgress
+
+if TYPE_CHECKING:
+    from enginebench.results.store import Run, RunStore
 
 
 @click.command()
@@ -45,12 +49,9 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     from enginebench.cli.table import paired_lines
     from enginebench.results.tables import paired_tests, summarize, to_rich
 
-    import signal
-
     from enginebench.errors import SpecError
 
-    # a terminated run (SIGTERM from a scheduler or `timeout`) is recorded as interrupted
-    signal.signal(signal.SIGTERM, lambda signum, frame: (_ for _ in ()).throw(SystemExit(128 + signum)))
+    stop_on_sigterm()
     from enginebench.results.catalog import parse_tags
 
     tag_map = parse_tags(tags)
@@ -84,11 +85,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
                                     scheduler=scheduler, tags=tag_map)
             bar.describe(f"{name}: done")
     except (KeyboardInterrupt, SystemExit):
-        stopped = resume or next((r for r in reversed(store_obj.runs()) if r.id not in known), None)
-        if stopped is not None:
-            info = stopped.info()
-            click.echo(f"interrupted: {info.get('finished_jobs', '?')} of {info.get('n_jobs', '?')} jobs of run "
-                       f"{stopped.id} are stored; finish it with `enginebench run --resume {stopped.id}`", err=True)
+        echo_resume_hint(store_obj, known, resume)
         raise
     raw = result.run.metrics()
     cfg = result.run.config()
@@ -96,7 +93,11 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     out = Console()
     from enginebench.results.units import run_units
 
-    if result.n_failed < result.n_jobs:
+    if "learning_curve" in cfg:  # a resumed learning curve ends as `learning-curve` does: its table and plot
+        from enginebench.cli.learning_curve import echo_curve
+
+        echo_curve(result.run)
+    elif result.n_failed < result.n_jobs:
         out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})",
                           units=run_units(result.run.info()), width=out.width))
         from enginebench.results.tables import default_paired_metric
@@ -119,6 +120,27 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     if dead:
         # exit 1, not 2: the input was fine and the run is stored, but a method produced no result at all
         raise SystemExit(f"error: every job of {', '.join(dead)} failed (reasons above); run {result.run.id} is stored")
+
+
+def stop_on_sigterm() -> None:
+    """Turn SIGTERM (from a scheduler or `timeout`) into SystemExit, so that the run is recorded as interrupted."""
+    import signal
+
+    def stop(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+
+
+def echo_resume_hint(store: RunStore, known: set[str], resume: Run | None = None) -> None:
+    """After an interruption: how many jobs of the run (``resume``, else the one not in ``known``) are stored and
+    the command that finishes it (on stderr; nothing when no run was created yet)."""
+    stopped = resume or next((r for r in reversed(store.runs()) if r.id not in known), None)
+    if stopped is None:
+        return
+    info = stopped.info()
+    click.echo(f"interrupted: {info.get('finished_jobs', '?')} of {info.get('n_jobs', '?')} jobs of run "
+               f"{stopped.id} are stored; finish it with `enginebench run --resume {stopped.id}`", err=True)
 
 
 def all_failed_methods(metrics) -> list[str]:

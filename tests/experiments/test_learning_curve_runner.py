@@ -10,7 +10,7 @@ from helpers import toy_spec
 
 from enginebench.cli.main import cli
 from enginebench.errors import StoreError
-from enginebench.experiments.learning_curve import SUMMARY_FILE, prepare_curve, run_learning_curve, summarize_curve
+from enginebench.experiments.learning_curve import PLOT_FILE, SUMMARY_FILE, prepare_curve, run_learning_curve, summarize_curve
 from enginebench.experiments.runner import plan, run_experiment
 from enginebench.results.store import RunStore
 
@@ -77,7 +77,47 @@ def test_run_resume_finishes_a_curve_from_the_command_line(toy_parquet, tmp_path
     assert out.exit_code == 0, out.output
     assert run.info()["status"] == "finished" and len(run.finished_jobs()) == 8 and not run.holds_lock()
     assert set(run.read_table(SUMMARY_FILE)["train_months"]) == set(MONTHS)
-    assert "test@0.001mo" in out.output
+    # it ends as `learning-curve` does: the curve's table, and the plot drawn in the run folder
+    assert "Learning curve of toy-exp" in out.output and "mae on the test part" in out.output
+    pytest.importorskip("matplotlib")
+    assert f"plot: {run.path / PLOT_FILE}" in out.output and (run.path / PLOT_FILE).stat().st_size > 0
+
+
+def curve_toml(path, tmp_path):
+    """The toy experiment as a file for the `learning-curve` command."""
+    exp = tmp_path / "curve.toml"
+    exp.write_text(f'name = "toy-exp"\ndataset = "{path}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 0\n'
+                   '[selection]\nkind = "none"\n[methods.naive-mean]\n')
+    return exp
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_an_interrupted_learning_curve_command_prints_how_to_resume_it(toy_parquet, tmp_path, monkeypatch, how):
+    import os
+    import signal
+
+    from enginebench.experiments import learning_curve as lc
+
+    real = lc.execute
+
+    def stop(done, total, job):
+        if how == "ctrl-c":
+            raise KeyboardInterrupt
+        os.kill(os.getpid(), signal.SIGTERM)  # as `timeout` or a batch scheduler does
+
+    monkeypatch.setattr(lc, "execute", lambda ctx, run, **kw: real(ctx, run, **{**kw, "progress": stop}))
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        out = CliRunner().invoke(cli, ["learning-curve", str(curve_toml(toy_parquet, tmp_path)), "--methods",
+                                       "naive-mean", "--months", ",".join(map(str, MONTHS)), "-j", "1", "-q",
+                                       "--store", str(tmp_path / "runs")])
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert out.exit_code != 0
+    (run,) = RunStore(tmp_path / "runs").runs()
+    assert run.info()["status"] == "interrupted"
+    assert (f"interrupted: 1 of 4 jobs of run {run.id} are stored; finish it with "
+            f"`enginebench run --resume {run.id}`") in out.output
 
 
 def test_prepare_resume_cleans_up_locks_and_lists_damaged_and_finished_jobs(toy_parquet, tmp_path):
