@@ -68,6 +68,10 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
 @click.option("--mlflow", "tracking_uri", required=True, metavar="URI",
               help="MLflow tracking URI: a server (http://...), sqlite:///FILE, or a local folder / file: URI.")
 @click.option("--experiment", default=None, help="MLflow experiment name [default: the run's experiment name].")
+@click.option("--artifacts", default=None, metavar="DIR",
+              help="Folder (or URI) for the artefacts of a new MLflow experiment [default: with sqlite:///DB "
+                   "next to the database (mlflow.db: mlflow-artifacts/); a server's or file store's own place; "
+                   "another database needs it].")
 @click.option("--report/--no-report", "with_report", default=False, show_default=True,
               help="Also log the HTML report (tables only, no figures with --no-figures) under report/.")
 @click.option("--figures/--no-figures", default=True, show_default=True, help="With --report: draw its figures.")
@@ -76,8 +80,8 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
                    "(refused without this flag).")
 @store_option
 @plugin_option
-def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figures: bool, replace: bool, store,
-           plugins) -> None:
+def export(run_ref: str, tracking_uri: str, experiment, artifacts, with_report: bool, figures: bool, replace: bool,
+           store, plugins) -> None:
     """Log RUN to an MLflow tracking store: one parent MLflow run and one child run per method.
 
     Parent: the config as params, the run's tags and artefacts (config.toml,
@@ -99,7 +103,7 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
     if with_report and figures:
         run.check_plugins("re-fitted for the report's figures (--no-figures logs the tables only)")
     if with_report:  # a store that would refuse the run does so before the report is built
-        check_destination(run, tracking_uri, experiment=experiment, replace=replace)
+        check_destination(run, tracking_uri, experiment=experiment, replace=replace, artifacts=artifacts)
     with tempfile.TemporaryDirectory(prefix="enginebench-report-") as tmp:
         report_dir = None
         if with_report:
@@ -109,7 +113,8 @@ def export(run_ref: str, tracking_uri: str, experiment, with_report: bool, figur
             for note in written.notes:
                 click.echo(f"note: {note}", err=True)
             report_dir = tmp
-        result = export_run(run, tracking_uri, experiment=experiment, report_dir=report_dir, replace=replace)
+        result = export_run(run, tracking_uri, experiment=experiment, report_dir=report_dir, replace=replace,
+                            artifacts=artifacts)
     click.echo(f"exported run {run.id} to {result.tracking_uri}: experiment {result.experiment_id}, "
                f"parent MLflow run {result.mlflow_run_id} with {len(result.child_run_ids)} child runs "
                f"({', '.join(result.child_run_ids)}; {result.n_params} params, {result.n_metric_values} metric values, "

@@ -15,12 +15,20 @@ deleted runs until ``mlflow gc``). A failed export deletes what it had logged.
 
 MLflow 3 refuses a local file store unless ``MLFLOW_ALLOW_FILE_STORE`` is set; a ``file:``
 URI (or a plain folder) asked for explicitly sets it for this process unless the variable
-is already set. MLflow's usage telemetry is turned off (``MLFLOW_DISABLE_TELEMETRY``) unless
+is already set.
+
+Artefacts of a new MLflow experiment go where ``artifact_location`` says: under the folder
+(or URI) the user names (``artifacts``, the CLI's ``--artifacts``), else, for an
+``sqlite:`` store, next to the database (``mlflow.db`` -> ``mlflow-artifacts/``), never
+MLflow's default ``./mlruns`` of the current folder; another database (postgresql, mysql,
+mssql) needs ``artifacts``. Servers and file stores keep their own default. An existing
+experiment keeps the location it was created with. MLflow's usage telemetry is turned off (``MLFLOW_DISABLE_TELEMETRY``) unless
 the variable is set: the toolkit makes no network calls of its own accord.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import tempfile
@@ -40,7 +48,7 @@ from enginebench.results.store import Run
 from enginebench.results.units import run_units
 
 __all__ = ["BATCH", "INSTALL_HINT", "PARAM_BATCH", "PROBE_TIMEOUT_S", "ExportResult", "MissingDependency",
-           "check_destination", "export_run", "import_mlflow", "resolve_uri",
+           "artifact_location", "check_destination", "export_run", "import_mlflow", "resolve_uri",
            # the layout's names (built without MLflow), still importable from here
            "ChildRun", "ExportError", "Layout", "build_layout", "flatten", "job_records", "key_part", "mlflow_key",
            "most_frequent_picks", "registry_family", "sanitize_key", "selected_frame"]
@@ -99,6 +107,32 @@ def resolve_uri(uri: str | Path) -> str:
     if re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", uri) and not re.match(r"^[A-Za-z]:[\\/]", uri):
         return uri
     return Path(uri).expanduser().resolve().as_uri()
+
+
+def artifact_location(uri: str, experiment: str, artifacts: str | Path | None = None) -> str | None:
+    """Where a new MLflow experiment named ``experiment`` in the store at ``uri`` keeps its artefacts.
+
+    Under ``artifacts`` (a folder or a URI) when given; for ``sqlite:///DB`` next to the
+    database (``DB-stem-artifacts/``); None (the store's own default) for servers and file
+    stores. Each experiment gets its own subfolder (its name made safe, and a hash of it).
+    Another database, or an in-memory sqlite one, without ``artifacts`` is refused: MLflow
+    would write into ./mlruns of the current folder.
+    """
+    scheme = uri.split(":", 1)[0].lower()
+    db_file = uri[len("sqlite:///"):].split("?")[0] if uri.lower().startswith("sqlite:///") else ""
+    if artifacts is not None and str(artifacts).strip():
+        root = resolve_uri(artifacts)
+    elif db_file not in ("", ":memory:"):
+        db = Path(db_file).expanduser().resolve()  # relative: to the current folder, as MLflow opens it
+        root = db.with_name(f"{db.stem}-artifacts").as_uri()
+    elif scheme.split("+")[0] in _SQL_SCHEMES:
+        raise ExportError(f"MLflow store {uri}: a database store has no folder of its own for artefacts, and MLflow "
+                          "would write them into ./mlruns of the current folder; pass --artifacts DIR (or a URI)")
+    else:
+        return None
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", experiment).strip("._") or "experiment"
+    digest = hashlib.sha256(experiment.encode("utf-8")).hexdigest()[:8]
+    return f"{root.rstrip('/')}/{safe[:80]}-{digest}"
 
 
 def _first_line(exc: BaseException) -> str:
@@ -171,17 +205,18 @@ def _quote_in_name(exc: BaseException, name: str) -> None:
 
 
 def _destination(client, uri: str, name: str, run_id: str, replace: bool, *,
-                 create: bool) -> tuple[str | None, list]:
+                 create: bool, artifacts: str | None = None) -> tuple[str | None, list]:
     """(the experiment's id, the runs of earlier exports of ``run_id`` in it), refused if any unless ``replace``.
 
-    ``create``: create a missing experiment (else its id is None).
+    ``create``: create a missing experiment (else its id is None), its artefacts under ``artifacts``
+    (None: the store's default).
     """
     found = client.get_experiment_by_name(name)
     if found is not None and found.lifecycle_stage != "active":
         raise ExportError(f"MLflow experiment {name!r} at {uri} is deleted; restore it (mlflow experiments restore "
                           f"--experiment-id {found.experiment_id}) or choose another with --experiment")
     if found is None:
-        return (client.create_experiment(name) if create else None), []
+        return (client.create_experiment(name, artifact_location=artifacts) if create else None), []
     earlier = _search_all(client, found.experiment_id, f"tags.`enginebench.run_id` = {_quoted(run_id)}")
     if earlier and not replace:
         from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
@@ -194,11 +229,12 @@ def _destination(client, uri: str, name: str, run_id: str, replace: bool, *,
 
 
 def check_destination(run: Run, tracking_uri: str | Path, *, experiment: str | None = None,
-                      replace: bool = False) -> None:
+                      replace: bool = False, artifacts: str | Path | None = None) -> None:
     """Refuse now what ``export_run`` would refuse about the store, creating nothing.
 
     A URI MLflow cannot use, an unreachable server, a deleted experiment, or an earlier
-    export of ``run`` without ``replace`` (the CLI asks before it builds a report).
+    export of ``run`` without ``replace``, a database store without a place for artefacts
+    (the CLI asks before it builds a report).
     """
     uri = resolve_uri(tracking_uri)
     if uri.startswith("file:"):
@@ -206,8 +242,9 @@ def check_destination(run: Run, tracking_uri: str | Path, *, experiment: str | N
     _, MlflowClient = import_mlflow()
     from mlflow.exceptions import MlflowException
 
-    client = _client(uri, MlflowClient)
     name = experiment or str(run.config().get("name") or run.info().get("name") or run.id)
+    artifact_location(uri, name, artifacts)
+    client = _client(uri, MlflowClient)
     try:
         _destination(client, uri, name, run.id, replace, create=False)
     except (MlflowException, OSError) as exc:
@@ -223,13 +260,15 @@ def export_run(
     interval: str | None = None,
     report_dir: str | Path | None = None,
     replace: bool = False,
+    artifacts: str | Path | None = None,
     family_of: Callable[[str], str | None] = registry_family,
 ) -> ExportResult:
     """Log ``run`` to the MLflow tracking store at ``tracking_uri``: a parent run and a child per method.
 
     See the module docstring for the layout. ``report_dir``: a folder written by
     ``write_report``, logged under ``report/``. ``replace``: delete an earlier export of
-    the same run in the same MLflow experiment (refused without it).
+    the same run in the same MLflow experiment (refused without it). ``artifacts``: where a new
+    MLflow experiment keeps its artefacts (see ``artifact_location``).
     """
     uri = resolve_uri(tracking_uri)
     if uri.startswith("file:"):
@@ -240,10 +279,11 @@ def export_run(
 
     layout = build_layout(run, interval=interval, family_of=family_of)
     name = experiment or layout.tags["enginebench.experiment"]
+    location = artifact_location(uri, name, artifacts)
     client = _client(uri, MlflowClient)
     created: list[str] = []
     try:
-        experiment_id, earlier = _destination(client, uri, name, run.id, replace, create=True)
+        experiment_id, earlier = _destination(client, uri, name, run.id, replace, create=True, artifacts=location)
         earlier_parents = [r.info.run_id for r in earlier if MLFLOW_PARENT_RUN_ID not in r.data.tags]
         now = int(time.time() * 1000)
         parent = client.create_run(experiment_id, run_name=layout.run_name, tags=layout.tags).info.run_id

@@ -308,3 +308,39 @@ def test_missing_mlflow_is_one_line_with_the_install_hint(run, monkeypatch, tmp_
     assert res.output.strip().splitlines() == [
         'error: MLflow export needs the mlflow package, which is not installed; pip install "enginebench[mlflow]"']
     assert not (tmp_path / "m").exists()
+
+
+def test_an_sqlite_export_keeps_its_artefacts_next_to_the_database_not_in_the_current_folder(run, tmp_path,
+                                                                                             monkeypatch):
+    """MLflow's default artefact root is ./mlruns of the current folder (where a file store may live)."""
+    from enginebench.results.mlflow_export import artifact_location
+
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    db = tmp_path / "tracking" / "mlflow.db"
+    db.parent.mkdir()
+    uri = f"sqlite:///{db}"
+    named = tmp_path / "elsewhere"
+    cases = [("sq", [], db.parent / "mlflow-artifacts"), ("named", ["--artifacts", str(named)], named)]
+    for experiment, extra, root in cases:
+        res = CliRunner().invoke(cli, ["export", run.id, "--store", str(run.path.parent), "--mlflow", uri,
+                                       "--experiment", experiment, *extra])
+        assert res.exit_code == 0, res.output
+        exp = _client(uri).get_experiment_by_name(experiment)
+        assert exp.artifact_location == artifact_location(uri, experiment, named if extra else None)
+        assert exp.artifact_location.startswith(root.as_uri() + "/")
+        assert any(p.name == "table.csv" for p in root.rglob("*"))
+    assert list(work.iterdir()) == []  # no ./mlruns
+
+
+def test_a_database_store_without_a_place_for_artefacts_is_refused(run):
+    from enginebench.results.mlflow_export import artifact_location
+
+    res = CliRunner().invoke(cli, ["export", run.id, "--store", str(run.path.parent), "--mlflow",
+                                   "postgresql://nowhere/db"])
+    assert res.exit_code == 2
+    assert res.output.strip().splitlines() == [
+        "error: MLflow store postgresql://nowhere/db: a database store has no folder of its own for artefacts, and "
+        "MLflow would write them into ./mlruns of the current folder; pass --artifacts DIR (or a URI)"]
+    assert artifact_location("http://host:5000", "e") is None and artifact_location("file:///tmp/m", "e") is None
