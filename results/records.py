@@ -18,6 +18,7 @@ import pandas as pd
 from enginebench.results.metrics import PER_SEGMENT
 from enginebench.results.stats import t_interval
 from enginebench.results.summary import BASELINE
+from enginebench.results.tables import LINEAR_BASELINES, NAIVE_BASELINES, NO_BETTER, linear_baseline
 
 COLUMNS = ("target", "window", "method", "repetition", "part", "record", "metric", "value", "rows")
 
@@ -96,16 +97,35 @@ def to_rich(table: pd.DataFrame, metric: str, units: Mapping[str, str] | None = 
 
 def verdict(block: pd.DataFrame, records: list[str], baseline: str = BASELINE) -> str:
     """One line: the method with the lowest mean over records, its margin over the next and over the baseline,
-    and on how many records it is the best."""
+    on how many records it is the best, and the methods no better than the linear baseline (``_linear_clause``)."""
     ranked = block.sort_values("mean", kind="stable")
     best = ranked.iloc[0]
     wins = sum(int(block.loc[block[r].idxmin(), "method"] == best["method"]) for r in records
                if block[r].notna().any())
     text = f"best: {best['method']} (mean {best['mean']:.4g}; best on {wins} of {len(records)} records)"
+    shown = {best["method"]}
     if len(ranked) > 1:
         second = ranked.iloc[1]
         text += f"; next {second['method']} {second['mean']:.4g} ({second['mean'] / best['mean'] - 1:+.0%})"
+        shown.add(second["method"])
     base = block[block["method"] == baseline]
     if len(base) and best["method"] != baseline:
         text += f"; {baseline} {float(base['mean'].iloc[0]):.4g}"
+    return text + _linear_clause(block, shown)
+
+
+def _linear_clause(block: pd.DataFrame, shown: set[str]) -> str:
+    """"; ridge 2.1; no better than ridge (the linear baseline): a, b" where a linear baseline is in the block: its
+    mean over records (unless ``shown`` already gives it) and the methods whose mean is not clearly below it
+    (``NO_BETTER``), so the line says when the paper's method loses to a straight line."""
+    found = linear_baseline(block)
+    if found is None:
+        return ""
+    name, base = found
+    text = "" if name in shown else f"; {name} {base:.4g}"
+    means = block["mean"].to_numpy(dtype=float)
+    others = ~block["method"].isin(LINEAR_BASELINES + NAIVE_BASELINES).to_numpy() & np.isfinite(means)
+    losing = [str(m) for m, o, v in zip(block["method"], others, means) if o and v >= (1.0 - NO_BETTER) * base]
+    if losing:
+        text += f"; no better than {name} (the linear baseline): {', '.join(losing)}"
     return text

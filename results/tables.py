@@ -193,7 +193,7 @@ def table_notes(summary: pd.DataFrame, cells: pd.DataFrame) -> list[str]:
     if {"rmse", "nrmse", "fit"} & set(cells.columns):
         notes.append("rmse in the target's unit; nrmse = rmse / standard deviation of the measured output "
                      "(dimensionless); fit = 100 (1 - nrmse), in %")
-    return notes + worse_than_baseline(summary)
+    return notes + worse_than_baseline(summary) + no_better_than_linear(summary)
 
 
 def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
@@ -227,6 +227,54 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
 NO_BETTER = 0.02
 """A method whose error is within this fraction below the training mean's (at least 0.98 x it) is flagged as no better
 than it."""
+
+LINEAR_BASELINES = ("ridge", "arx")
+"""The linear baselines: ``ridge`` in static and window tables, ``arx`` in simulation tables. A method whose error is
+not clearly below theirs is flagged under the table (``no_better_than_linear``): a linear model does as well."""
+NAIVE_BASELINES = (BASELINE, "naive-last")
+"""Constant and persistence baselines: never flagged against a linear baseline (they do not claim to learn)."""
+
+
+def linear_baseline(rows: pd.DataFrame) -> tuple[str, float] | None:
+    """(name, mean) of the best linear baseline among one block's rows of one metric (columns method and mean), or
+    None when none has a finite mean."""
+    lin = rows[rows["method"].isin(LINEAR_BASELINES)]
+    means = lin["mean"].to_numpy(dtype=float)
+    if not np.isfinite(means).any():
+        return None
+    best = int(np.argmin(np.where(np.isfinite(means), means, np.inf)))
+    return str(lin["method"].iloc[best]), float(means[best])
+
+
+def no_better_than_linear(summary: pd.DataFrame) -> list[str]:
+    """A note for each method whose mean error is above, or within ``NO_BETTER`` below, the linear baseline's.
+
+    The error is rmse in simulation mode and mae otherwise, as for the training mean: where a nonlinear,
+    physical or hybrid model does not beat ridge (arx in simulation), a straight line explains these data as
+    well, and the headline says so rather than leaving the reader to compare rows.
+    """
+    out = []
+    block_keys = ["dataset", "target", "mode", "window", "split"]
+    for key, block in summary.groupby(block_keys, sort=False, dropna=False):
+        metric = "rmse" if key[2] == "simulation" else "mae"
+        rows = block[block["metric"] == metric]
+        found = linear_baseline(rows)
+        if found is None:
+            continue
+        name, base = found
+        means = rows["mean"].to_numpy(dtype=float)
+        others = ~rows["method"].isin(LINEAR_BASELINES + NAIVE_BASELINES).to_numpy() & np.isfinite(means)
+        for (_, r), other, mean in zip(rows.iterrows(), others, means):
+            if not other or mean < (1.0 - NO_BETTER) * base:
+                continue
+            where = f"{metric} {mean:.4g} vs {base:.4g}; {r['target']}, Delta {r['window']:g} s, {r['split']}"
+            if mean > base:
+                out.append(f"worse than {name} (the linear baseline): {r['method']} ({where}): a linear model does "
+                           "better here")
+            else:
+                out.append(f"no better than {name} (the linear baseline, within {100 * NO_BETTER:g} %): "
+                           f"{r['method']} ({where}): a linear model does as well here")
+    return out
 
 
 def _labelled(summary: pd.DataFrame, metrics: Sequence[str] | None,
