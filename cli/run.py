@@ -99,7 +99,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
         echo_curve(result.run)
     elif result.n_failed < result.n_jobs:
         out.print(to_rich(summary, title=f"{cfg.get('name')} ({cfg.get('dataset')}, {cfg.get('mode')})",
-                          units=run_units(result.run.info()), width=out.width))
+                          units=run_units(result.run.info()), width=out.width, bold=out.color_system is not None))
         from enginebench.results.tables import default_paired_metric
 
         paired_metric = default_paired_metric(cfg.get("mode", ""))

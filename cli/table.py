@@ -11,8 +11,8 @@ from enginebench.cli.options import check_metrics, check_output, emit, split_lis
 @click.command()
 @click.argument("run_ref", metavar="RUN", default="latest")
 @click.option("--format", "fmt", type=click.Choice(["term", "md", "latex", "csv", "html"]), default="term", show_default=True)
-@click.option("--metrics", default=None, help="Comma-separated metric columns (wide formats) "
-              "[default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
+@click.option("--metrics", default=None, help="Comma-separated metric columns (wide formats), or 'all' (every "
+              "metric the run has) [default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")
 @click.option("--paired", "paired_metric", default=None,
               help="Metric for the paired tests printed under term/md tables ('' to skip) "
@@ -54,8 +54,8 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     run = open_run(run_ref, store)
     if picks or folds:
         return _picks(run, fmt, picks, folds, top, output)
-    if by_record:
-        return _by_record(run, split_list(metrics), fmt, output, width)
+    if by_record:  # one metric: 'all' means the default one
+        return _by_record(run, [] if _is_all(metrics) else split_list(metrics), fmt, output, width)
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     if len(raw) and not (raw["status"] == "ok").any():  # nothing to tabulate: say why instead
@@ -69,7 +69,7 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     summary = tables.summarize(raw, interval=interval)
     if paired_metric is None:
         paired_metric = tables.default_paired_metric(str(run.config().get("mode", "")))
-    cols = split_list(metrics) or None
+    cols = all_metrics(summary) if _is_all(metrics) else split_list(metrics) or None
     if cols:
         check_metrics(cols, summary["metric"], "--metrics", run.id)
     if paired_metric:
@@ -78,7 +78,8 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     units = run_units(run.info())  # {} for a run made before units were recorded: headers without units
     if fmt == "term" and output is None:
         console = Console(width=width) if width else Console()
-        console.print(tables.to_rich(summary, cols, title=run.id, units=units, width=console.width))
+        console.print(tables.to_rich(summary, cols, title=run.id, units=units, width=console.width,
+                                     bold=console.color_system is not None))  # a pipe or file gets no bold
         if paired_metric:
             click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric, console.width))
         for line in notes:
@@ -99,6 +100,21 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     if notes and fmt not in ("term", "md"):  # csv, LaTeX and HTML stay parseable: the notes go to stderr
         for line in notes:
             click.echo(line, err=True)
+
+
+def _is_all(text: str | None) -> bool:
+    return (text or "").strip().lower() == "all"
+
+
+def all_metrics(summary) -> list[str]:
+    """``--metrics all``: every metric of the summary, the known ones in METRICS' order, then the rest (skill_...);
+    not the count columns the wide table adds itself."""
+    from enginebench.results.metrics import METRICS
+    from enginebench.results.tables import COUNT_COLUMNS
+
+    have = set(summary["metric"])
+    return ([m for m in METRICS if m in have]
+            + sorted(m for m in have if m not in METRICS and m not in COUNT_COLUMNS))
 
 
 def _by_record(run, metrics: list[str], fmt: str, output, width) -> None:

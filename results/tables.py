@@ -164,18 +164,21 @@ def _rows(cells: pd.DataFrame, bold: pd.DataFrame, mark) -> list[list[str]]:
     return out
 
 
-def interval_note(summary: pd.DataFrame) -> str:
-    """The first note under a table: which interval the cells show."""
+def interval_note(summary: pd.DataFrame, bold: bool = True) -> str:
+    """The first note under a table: which interval the cells show, and (``bold``: where bold is drawn) that the
+    best per block is in bold."""
     plain = summary[~summary["note"].fillna("").str.startswith(CROSSED_NOTE)] if "note" in summary else summary
     kind = plain["interval"].iloc[0] if len(plain) else (summary["interval"].iloc[0] if len(summary) else "t")
     which = "Student-t" if kind == "t" else "bootstrap percentile"
-    return f"mean ± half-width of the {which} 95% interval over repetitions (n); best per block in bold"
+    best = "; best per block in bold" if bold else ""
+    return f"mean ± half-width of the {which} 95% interval over repetitions (n){best}"
 
 
-def table_notes(summary: pd.DataFrame, cells: pd.DataFrame) -> list[str]:
-    """The notes printed under a wide table: the interval, and what every mark and extra column shown means."""
+def table_notes(summary: pd.DataFrame, cells: pd.DataFrame, bold: bool = True) -> list[str]:
+    """The notes printed under a wide table: the interval, and what every mark and extra column shown means
+    (``bold``: the table draws the best per block in bold)."""
     text = cells.to_numpy().ravel().tolist()
-    notes = [interval_note(summary)]
+    notes = [interval_note(summary, bold)]
     if any(CROSSED in str(c) for c in text):
         shown = [m for m in cells.columns if any(CROSSED in str(c) for c in cells[m])]
         notes.append(f"{CROSSED} the Student-t interval crosses the metric's bound "
@@ -406,9 +409,10 @@ def term_blocks(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
 
 
 def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: str | None = None, *,
-            units: Mapping[str, str] | None = None, width: int | None = None):
+            units: Mapping[str, str] | None = None, width: int | None = None, bold: bool = True):
     """The terminal table as one rich renderable: `title`, then one titled block per (target, mode, Delta, split)
-    (``term_blocks``), then the notes. `width` None: the terminal's (``shutil.get_terminal_size``)."""
+    (``term_blocks``), then the notes. `width` None: the terminal's (``shutil.get_terminal_size``). `bold`: the
+    console draws styles (``Console.color_system`` is not None), so the notes may say the best is in bold."""
     from rich.console import Group
     from rich.text import Text
 
@@ -417,7 +421,7 @@ def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: 
     parts: list[object] = [Text(title, style="bold")] if title else []
     for head, table in term_blocks(summary, metrics, units=units, width=width):
         parts += [Text(""), Text(head, style="bold"), table]
-    parts += [Text("")] + [Text(n) for n in table_notes(summary, cells)] + [Text("")]  # a gap before what follows
+    parts += [Text("")] + [Text(n) for n in table_notes(summary, cells, bold)] + [Text("")]  # a gap before what follows
     return Group(*parts)
 
 
@@ -429,7 +433,7 @@ def to_term(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: 
     from rich.console import Console
 
     console = Console(file=io.StringIO(), width=width, color_system=None, legacy_windows=False)
-    console.print(to_rich(summary, metrics, title, units=units, width=width))
+    console.print(to_rich(summary, metrics, title, units=units, width=width, bold=False))  # plain text: no bold
     return console.file.getvalue()
 
 
