@@ -31,11 +31,14 @@ COLUMNS = (
     Column("TIT", "input", "degC"),    # turbine inlet temperature
     Column("TAT", "output", "degC"),   # turbine after temperature
     Column("TEY", "input", "MWh"),     # turbine energy yield
-    Column("CDP", "input", "mbar"),    # compressor discharge pressure
+    Column("CDP", "input", "bar"),     # compressor discharge pressure: bar (see CDP_UNIT_NOTE)
     Column("CO", "output", "mg/m3"),   # carbon monoxide
     Column("NOX", "output", "mg/m3"),  # nitrogen oxides
 )
 TARGETS = ("NOX", "CO", "TAT")
+CDP_UNIT_NOTE = ("CDP is in bar: the UCI description (and its copies) label it mbar, but its values, 9.9-15.2, are a "
+                 "compressor discharge pressure of about 12 times the ambient 1013 mbar, i.e. bar")
+"""Why CDP's unit differs from the source's label (``datasets show`` prints it; docs/data.md says the same)."""
 
 META = {
     "description": "Hourly records 2011-2015 of a gas turbine in north-western Turkey (ambient conditions, process variables, CO and NOx).",
@@ -45,6 +48,7 @@ META = {
     "synthetic": False,
     "published_split": {"train": ["2011", "2012", "2013"], "test": ["2014", "2015"]},
     "physical_model": "gas-turbine-tat",
+    "notes": [CDP_UNIT_NOTE],
 }
 
 

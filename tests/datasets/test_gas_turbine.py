@@ -64,3 +64,21 @@ def test_pm_krls_and_hybrid_run_at_two_windows(gas_turbine_dir, tmp_path, monkey
     meta = result.run.job_meta("TAT__w3600__published__mtl-krls__r000")
     assert {"gamma", "lambda", "theta"} == set(meta["params"])
     assert 0.15 < meta["describe"]["pm_params"]["k"] < 0.3
+
+
+def test_declared_pressure_units_match_the_values_and_the_docs(dataset):
+    """CDP is labelled mbar by the UCI source, but its values are bar: the schema, the notes and docs/data.md say bar."""
+    from pathlib import Path
+
+    from enginebench.datasets.gas_turbine.importer import CDP_UNIT_NOTE
+
+    units = {c.name: c.unit for c in dataset.schema.columns}
+    assert (units["CDP"], units["AP"], units["GTEP"], units["AFDP"]) == ("bar", "mbar", "mbar", "mbar")
+    f = dataset.frame
+    to_mbar = {"bar": 1000.0, "mbar": 1.0}
+    ratio = f["CDP"] * to_mbar[units["CDP"]] / (f["AP"] * to_mbar[units["AP"]])
+    assert ratio.between(8.0, 20.0).all()  # an industrial gas turbine's pressure ratio, in the declared units
+    assert CDP_UNIT_NOTE in dataset.meta["notes"]
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "data.md").read_text(encoding="utf-8")
+    row = next(line for line in docs.splitlines() if line.startswith("| `gas-turbine-emissions`"))
+    assert "CDP **bar**" in row and "AP, AFDP, GTEP mbar" in row
