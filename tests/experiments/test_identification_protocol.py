@@ -221,8 +221,12 @@ def test_kfold_selection_inside_one_estimation_record(recs_file, tmp_path):
     assert len(blocks) == 4 * 3 and all(p["y_init"] == [(10, 1)] and p["first_row"] == [10] for p in blocks)
     meta = run.job_meta(next(iter(sorted(p.stem for p in run.job_files()))))
     assert meta["status"] == "ok" and meta["search"]["resamples"] == 4
-    # y is about 1 everywhere: c = 1 is the best constant, and it sits inside the grid (no edge warning)
-    assert meta["params"] == {"c": 1.0} and "warnings" not in meta
+    # y is about 1 everywhere: c = 1 is the best constant, and it sits inside the grid (no edge warning); a
+    # constant is the training mean at best, which the job says
+    assert meta["params"] == {"c": 1.0}
+    assert [w for w in meta["warnings"] if "edge" in w] == []
+    assert [w.split(" (")[0] for w in meta["warnings"]] == [
+        "test-probe: no candidate scored better than the training mean on the selection's resamples"]
 
 
 def test_bootstrap_over_one_record_and_validation_without_a_part_are_refused_early(recs_file, tmp_path):
