@@ -31,7 +31,7 @@ def methods_list(plugins) -> None:
 @click.argument("name")
 @plugin_option
 def methods_show(name: str, plugins) -> None:
-    """Family, modes, the docstring and every option (type, default, unit, meaning) of method NAME."""
+    """Family, modes, the docstring (else the summary) and every option (type, default, unit, meaning) of method NAME."""
     import inspect
 
     from enginebench.methods.registry import get
@@ -41,7 +41,8 @@ def methods_show(name: str, plugins) -> None:
     joint = "; joint targets: yes" if getattr(cls, "joint_targets", False) else ""
     click.echo(f"{cls.name}  ({cls.family}; modes: {', '.join(sorted(cls.modes))}{joint})")
     click.echo(f"class: {cls.__module__}.{cls.__qualname__}")
-    doc = inspect.getdoc(cls)
+    own = cls.__dict__.get("__doc__")  # inspect.getdoc would give a base class's docstring to a class without one
+    doc = inspect.cleandoc(own) if own else cls.summary
     if doc:
         click.echo("\n" + doc)
     rows = cls.option_declaration().rows()

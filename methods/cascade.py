@@ -106,7 +106,8 @@ class Cascade(Method):
     name = "cascade"
     family = "hybrid"
     modes = frozenset({"simulation"})
-    summary = "cascade: an upstream model of an intermediate (e.g. WF) feeds a downstream model of the target (seed 003)"
+    summary = ("cascade: an upstream model of an intermediate (e.g. WF) feeds a downstream model of the target "
+               "(turboshaft-moe)")
     preset: ClassVar[dict[str, Any]] = {}
 
     declared_options = OPTIONS
@@ -363,7 +364,7 @@ def _plain(v: Any) -> Any:
 
 # -- the seed's Table 3 rows ---------------------------------------------------------------------
 class MoENFIR(Cascade):
-    """MoE for the target fed by the NFIR-reconstructed intermediate (seed 003: MoE-NFIR)."""
+    """MoE for the target fed by the NFIR-reconstructed intermediate (turboshaft-moe: MoE-NFIR)."""
 
     name = "moe-nfir"
     family = "hybrid"
@@ -372,7 +373,7 @@ class MoENFIR(Cascade):
 
 
 class SINDyNFIR(Cascade):
-    """SINDy for the target fed by the NFIR-reconstructed intermediate (seed 003: SINDy-NFIR)."""
+    """SINDy for the target fed by the NFIR-reconstructed intermediate (turboshaft-moe: SINDy-NFIR)."""
 
     name = "sindy-nfir"
     family = "data-driven"
@@ -381,7 +382,7 @@ class SINDyNFIR(Cascade):
 
 
 class MoEMoE(Cascade):
-    """MoE for the target fed by the upstream MoE's simulated intermediate (seed 003: MoE-MoE)."""
+    """MoE for the target fed by the upstream MoE's simulated intermediate (turboshaft-moe: MoE-MoE)."""
 
     name = "moe-moe"
     family = "hybrid"

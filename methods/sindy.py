@@ -291,7 +291,7 @@ def _format_terms(coef_row: np.ndarray, names: Sequence[str], digits: int = 4) -
 
 # --------------------------------------------------------------------------- method
 class SINDy(Method):
-    """Sparse identification of nonlinear dynamics with control (seed 003's benchmark)."""
+    """Sparse identification of nonlinear dynamics with control (the turboshaft-moe benchmark)."""
 
     name = "sindy"
     family = "data-driven"

@@ -234,7 +234,7 @@ def generate(size: str = "small", seed: int = 0, progress: Callable[[float], Non
         "synthetic": True,
         "description": ("Synthetic four-stroke medium-speed propulsion diesel (12 cylinders, two banks) of a "
                         "twin-shaft patrol vessel with controllable-pitch propellers, logged at 1/3 Hz; "
-                        "after seed 000 (Table 1 channels). Not real data."),
+                        "after the egt-hybrid paper (its Table 1 channels). Not real data."),
         "size": size,
         "seed": int(seed),
         "published_split": split,

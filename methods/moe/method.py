@@ -17,12 +17,12 @@ from enginebench.methods.moe.training import fit_mixture
 
 
 class MoE(Method):
-    """Mixture of LPV experts with frozen-stability sign constraints (seed 003)."""
+    """Mixture of LPV experts with frozen-stability sign constraints (turboshaft-moe)."""
 
     name = "moe"
     family = "hybrid"
     modes = frozenset({"simulation"})
-    summary = "mixture of LPV experts with frozen stability, trained on TV derivatives (seed 003)"
+    summary = "mixture of LPV experts with frozen stability, trained on TV derivatives (turboshaft-moe)"
 
     declared_options = OPTIONS
 

@@ -114,7 +114,7 @@ OPTIONS = Declaration(
     listing("expert_inputs", None, "input columns in the experts' regressors [z; u; 1]; None = all inputs",
             items="str", nullable=True, min_items=0, message=NAMES_MESSAGE),
     table("input_derivatives", None, "input derivatives added to the regressors, {column: highest order 1 or 2} "
-          "(seed 003's dNR', dNR'', COL'), from a cubic Savitzky-Golay fit over derivative_window", nullable=True,
+          "(turboshaft-moe's dNR', dNR'', COL'), from a cubic Savitzky-Golay fit over derivative_window", nullable=True,
           check=_derivatives, message=DERIVATIVES_MESSAGE),
     positive("derivative_window", None, "window of the input derivatives; None = "
              f"{DERIVATIVE_WINDOW_SAMPLES} samples", nullable=True, unit="s",

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import ast
 import io
+import re
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -53,3 +56,56 @@ def test_table_metrics_all_shows_every_metric_the_run_has(run):
     assert csv.splitlines()[0].startswith("dataset,")
     refused = CliRunner().invoke(cli, ["table", run.id, "--store", str(run.path.parent), "--metrics", "nope"])
     assert refused.exit_code == 2 and "--metrics: unknown metric(s) nope; run " in refused.output
+
+
+def test_a_plugin_without_a_docstring_shows_its_summary_not_the_base_classs_docstring(tmp_path):
+    plugin = tmp_path / "bare_plugin.py"
+    plugin.write_text('''
+import numpy as np
+from enginebench.methods.base import Method
+
+class Bare(Method):
+    name = "bare-median"
+    family = "baseline"
+    summary = "training median, no docstring"
+    def fit(self, train, params, rng):
+        return np.median(train.y, axis=0)
+    def predict(self, fitted, data):
+        return [np.tile(fitted, (len(s), 1)) for s in data.segments]
+''')
+    out = CliRunner().invoke(cli, ["methods", "show", "bare-median", "--plugin", str(plugin)])
+    assert out.exit_code == 0, out.output
+    assert "Base class of every method" not in out.output
+    assert out.output.splitlines()[2:4] == ["", "training median, no docstring"]
+
+
+PAPER_BY_SEED = re.compile(r"seed ?0\d\d", re.IGNORECASE)
+"""The papers' old names (seed 000 ... seed 003): user-facing text names them as docs/papers.md does."""
+
+
+def test_methods_list_and_show_name_papers_by_their_stable_names():
+    from enginebench.methods.registry import available
+
+    listed = CliRunner().invoke(cli, ["methods", "list"])
+    assert listed.exit_code == 0 and not PAPER_BY_SEED.search(listed.output), listed.output
+    assert "(turboshaft-moe)" in listed.output
+    for name in available():
+        shown = CliRunner().invoke(cli, ["methods", "show", name])
+        assert shown.exit_code == 0 and not PAPER_BY_SEED.search(shown.output), (name, shown.output)
+
+
+def test_no_user_facing_string_names_a_paper_by_its_old_seed_number():
+    """String values (summaries, help, messages, dataset descriptions), not docstrings or comments; the papers
+    registry, which maps the old names to the stable ones, is the exception."""
+    root = Path(__file__).resolve().parents[2]
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root)
+        if rel.parts[0] in ("tests", "build", "benchmarks", "examples") or rel.parts[0].startswith(".") \
+                or rel.as_posix() == "enginebench/papers.py":
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        docs = {id(n.value) for n in ast.walk(tree) if isinstance(n, ast.Expr) and isinstance(n.value, ast.Constant)}
+        found += [f"{rel}:{n.lineno}" for n in ast.walk(tree) if isinstance(n, ast.Constant)
+                  and isinstance(n.value, str) and id(n) not in docs and PAPER_BY_SEED.search(n.value.replace("seed00", ""))]
+    assert found == []
