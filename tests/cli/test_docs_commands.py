@@ -143,8 +143,6 @@ def problems(cmd: DocCommand, experiments: set[str]) -> list[str]:
             command, path = sub, [*path, w]
             continue
         positional.append(w)
-    if isinstance(command, click.Group) and path and not any(a in ("--help", "-h") for a in words):
-        pass  # a group named alone prints its help
     if tuple(path) in EXPERIMENT_VERBS and positional:
         exp = positional[0]
         literal = not _placeholder(exp) and not exp.endswith(".toml") and "/" not in exp
