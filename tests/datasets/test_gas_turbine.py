@@ -82,3 +82,15 @@ def test_declared_pressure_units_match_the_values_and_the_docs(dataset):
     docs = (Path(__file__).resolve().parents[2] / "docs" / "data.md").read_text(encoding="utf-8")
     row = next(line for line in docs.splitlines() if line.startswith("| `gas-turbine-emissions`"))
     assert "CDP **bar**" in row and "AP, AFDP, GTEP mbar" in row
+
+
+def test_the_published_baseline_was_made_from_this_importers_data(dataset):
+    """`tox -e guard` imports the data afresh: the baseline's dataset hash must be the importer's (schema and units
+    included), or guard warns that the dataset differs."""
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "results" / "published" / "gas-turbine-nox-quick.json"
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    hashes = {doc["dataset_hash"], *(r["dataset_hash"] for r in doc["reproducibility"]["reruns"])}
+    assert hashes == {dataset.content_hash()}
