@@ -59,8 +59,6 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     if len(raw) and not (raw["status"] == "ok").any():  # nothing to tabulate: say why instead
-        from enginebench.results.notes import run_note_lines
-
         for line in run_note_lines(run, width=200):
             click.echo(line)
         from enginebench.errors import DataError
