@@ -152,7 +152,7 @@ def test_grid_edges_of_builtins():
     from enginebench.methods.krls import KRLS
     from enginebench.methods.sindy import SINDy
 
-    assert SINDy.grid_edges() == {"degree": "high", "threshold": "both", "alpha": "both"}
+    assert SINDy.grid_edges() == {"order": "both", "degree": "high", "threshold": "both", "alpha": "both"}
     assert KRLS.grid_edges() == {"gamma": "both", "lambda": "both"}
 
 
