@@ -256,8 +256,9 @@ def test_the_marine_baseline_passes_another_machines_digits_and_fails_a_real_reg
     moved = rows[(rows["method"] == "pm") & (rows["mean"] != 0)]
     assert (moved["status"] == "regressed").any()
     assert set(rows.loc[rows["status"] == "regressed", "method"]) == {"pm"}
-    # a method with a real interval keeps it: 1e-3 worse is inside KRLS's interval, 50 % worse is not
-    assert (check(doc, _shifted(doc, "krls", 1 + 1e-3))[0]["status"] == "ok").all()
+    # a method with a real interval keeps it: 1e-4 worse is inside KRLS's interval (its tightest, ppmcc at Delta 30 s,
+    # is +-3.4e-4 since selection extends gamma past its grid), 50 % worse is not
+    assert (check(doc, _shifted(doc, "krls", 1 + 1e-4))[0]["status"] == "ok").all()
     assert (check(doc, _shifted(doc, "krls", 1.5))[0]["status"] == "regressed").any()
 
 
