@@ -52,7 +52,7 @@ def test_builtin_specs_load_with_the_seed_protocol():
     for spec in (full, quick):
         assert spec.dataset == "marine-diesel" and spec.targets == TARGETS
         assert spec.mode == "window" and {0.0, 30.0} <= set(spec.windows)
-        assert spec.methods == ("naive-mean", "pm", "krls", "mtl-krls")
+        assert spec.methods == ("naive-mean", "ridge", "pm", "krls", "mtl-krls")
         assert spec.selection.kind == "bootstrap" and spec.split == {"kind": "published"}
         assert spec.roles == {}
     assert full.dataset_variant == "full" and full.repetitions == 30

@@ -160,7 +160,7 @@ def test_failed_jobs_are_counted_not_averaged(toy_parquet, tmp_path):
 
 def test_builtin_specs_parse():
     spec = load_spec("gas-turbine-nox")
-    assert spec.methods == ("naive-mean", "krls") and spec.repetitions == 30
+    assert spec.methods == ("naive-mean", "ridge", "krls") and spec.repetitions == 30
     assert spec.method_options["krls"]["gamma_grid"] == [-4, 4, 41]
 
 
