@@ -78,7 +78,9 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     known = {r.id for r in store_obj.runs()}
     try:
         with JobProgress(f"{name}: preparing", lambda job: f"{name}: last done {job.method} r{job.repetition}", quiet,
-                         running=f"{name}: running") as bar:
+                         running=f"{name}: running",
+                         running_label=lambda job: f"{name}: running {job.method} {job.target} r{job.repetition}"
+                         ) as bar:
             result = run_experiment(spec, store_obj, workers=workers,
                                     plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar,
                                     resume=resume, executor=executor or ("dask" if scheduler else "local"),

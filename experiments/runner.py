@@ -372,6 +372,8 @@ def execute(
     done = len(jobs) - len(todo)
     if hasattr(progress, "planned"):  # a progress display told the total before the first job finishes
         progress.planned(done, len(jobs))
+    if hasattr(progress, "plan_jobs"):  # ... and which jobs, for costs per method (experiments/progress.py)
+        progress.plan_jobs(todo)
     spill_dir = None
     if len(todo) > 1 and (workers > 1 if executor == "local" else scheduler is None):
         spill_dir = tempfile.mkdtemp(prefix="enginebench-raw-")
@@ -384,6 +386,8 @@ def execute(
             run.write_job(job.key, rows, meta)
             n_failed += meta["status"] != "ok"
             done += 1
+            if hasattr(progress, "job_done"):
+                progress.job_done(job, meta)
             if progress:
                 progress(done, len(jobs), job)
     except BaseException:

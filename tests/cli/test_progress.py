@@ -30,3 +30,34 @@ def test_the_total_is_known_once_planned_and_the_label_names_the_last_finished_j
         bar(4, 12, "arx r0")
         assert task.completed == 4 and task.description == "x: last done arx r0"
 
+
+
+def test_the_measured_eta_counts_down_between_jobs():
+    task = SimpleNamespace(completed=2, total=10, fields={"first": 0, "eta": 100.0, "eta_at": 30.0}, elapsed=50.0)
+    assert str(RunRemainingColumn().render(task)) == "0:01:20 left"  # 100 s estimated 20 s ago
+
+
+def test_the_label_names_the_running_job_and_a_methods_last_job_prints_its_line(capsys):
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class J:
+        key: str
+        method: str
+        repetition: int
+
+    jobs = [J("a0", "arx", 0), J("a1", "arx", 1), J("n0", "narx", 0)]
+    bar = JobProgress("x: preparing", lambda job: f"x: last done {job.key}", quiet=False, running="x: running",
+                      running_label=lambda job: f"x: running {job.method} r{job.repetition}")
+    with bar:
+        task = bar._progress.tasks[0]
+        bar.planned(0, 3)
+        bar.plan_jobs(jobs)
+        assert task.description == "x: running arx r0"
+        bar.job_done(jobs[0], {"timings": {"fit": 2.0}})
+        bar(1, 3, jobs[0])
+        assert task.description == "x: running arx r1" and task.fields["eta"] is not None
+        bar.job_done(jobs[1], {"timings": {"fit": 4.0}})
+        bar(2, 3, jobs[1])
+        assert task.description == "x: running narx r0"
+    assert "arx: 2 jobs done, 3.0 s each (6 s of compute)" in capsys.readouterr().err
