@@ -19,7 +19,7 @@ import numpy as np
 from enginebench.datasets.samples import Samples
 from enginebench.declare import listing, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params, SearchSpace
+from enginebench.methods.base import Params, SearchSpace, TrainingShape
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
                                              lag_feature_names, lagged_inputs, nfir_lags)
 
@@ -75,6 +75,21 @@ class InputHistory:
                 f"{'a run-time input' if len(missing) == 1 else 'run-time inputs'} of the data; its inputs are "
                 f"{', '.join(inputs)}"
             )
+
+    def check_data(self, shape: TrainingShape) -> None:
+        """Given ``horizons`` longer than the longest training record are refused before the first job: every lag
+        past a record's start reads its first sample (edge padding), so such a window models nothing."""
+        horizons = self.options["horizons"]
+        if not horizons or shape.dt <= 0 or not shape.records:
+            return
+        longest = shape.longest
+        bad = [h for h in horizons if float(h) / shape.dt >= longest]
+        if bad:
+            raise MethodError(
+                f"method {self.name!r}: option horizons = {list(horizons)!r} s includes {bad[-1]:g} s = "
+                f"{float(bad[-1]) / shape.dt:.0f} samples at dt = {shape.dt:g} s, as long as or longer than the "
+                f"longest of the {shape.describe()}; use horizons below {longest * shape.dt:g} s (or leave horizons "
+                "out to derive them from the data)")
 
     def history_space(self, data: Samples) -> SearchSpace:
         """Horizons (s) and strides as given, else the horizons derived from the memory of ``data``."""

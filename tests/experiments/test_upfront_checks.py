@@ -66,3 +66,10 @@ def test_carried_lags_is_the_last_lag_whose_rows_outnumber_it():
     assert shape.rows_after(top) > top and shape.rows_after(top + 1) <= top + 1 and top == 89
     assert carried_lags(TrainingShape((1,), (), ("y",), 1.0, "simulation")) == 0
     assert carried_lags(TrainingShape((), (), ("y",), 1.0, "simulation")) == 0
+
+
+def test_an_input_window_longer_than_the_records_is_refused_before_the_first_job(tmp_path, toy):
+    assert _run(tmp_path, toy, {"nfir": {"horizons": [10.0, 500.0]}}) == (2, (
+        "error: method 'nfir': option horizons = [10.0, 500.0] s includes 500 s = 500 samples at dt = 1 s, as long as "
+        "or longer than the longest of the 3 training records of at most 120 samples (360 in all); use horizons "
+        "below 120 s (or leave horizons out to derive them from the data)\n"))
