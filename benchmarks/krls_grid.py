@@ -84,7 +84,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=2000, help="number of samples")
     ap.add_argument("--d", type=int, default=8, help="number of features")
-    ap.add_argument("--grid", type=int, default=11, help="values per hyperparameter (41 = the DESIGN's grid)")
+    ap.add_argument("--grid", type=int, default=11, help="values per hyperparameter (41 = krls's default grid)")
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1,

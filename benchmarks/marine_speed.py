@@ -1,14 +1,14 @@
 """Speed of the marine-diesel simulator and physical model, in one process.
 
 Prints, for the data set of the chosen size, how many simulated seconds each runs per
-wall-clock second (the reference is real time: the seed reports its PM at 100-2500 x
+wall-clock second (the reference is real time: the egt-hybrid paper reports its PM at 100-2500 x
 real time) and samples per second:
 
 * the generator (profile, true engine over every voyage row including logging gaps and
   lane warm-up, thermal blocks, sensors), timed end to end, rated on the logged rows;
 * the PM over all rows at once (``pm.simulate_frame``) and segment by segment through
   the ``PhysicalModel`` protocol (``MarineDieselPM.simulate``), with the parameters
-  calibrated on the seed's FAT (calibration not timed).
+  calibrated on the egt-hybrid paper's FAT (calibration not timed).
 
 Usage: python benchmarks/marine_speed.py [--size small|full] [--seed N]
 """

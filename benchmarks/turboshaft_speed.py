@@ -1,7 +1,7 @@
 """Simulation speed of SINDy and MoE on the turboshaft test trajectories, and MoE training time, in one process.
 
 The reference is real time: a trajectory recorded at 12 Hz for T seconds is simulated
-in W wall seconds at T / W times real time (seed 003: both run faster than real time on
+in W wall seconds at T / W times real time (turboshaft-moe: both run faster than real time on
 a laptop; the project's target is at least 1000 x on 2 cores). Each model is fitted
 once on training trajectories of the published split (not timed for SINDy), then every
 test trajectory is simulated open loop from its measured initial output in one batched
@@ -9,7 +9,7 @@ call (timed, best of ``--repeats``). The MoE training time is timed separately o
 training rows with the default hyperparameters (or ``--epochs``). The MoE runs with the
 options of the experiment turboshaft-wf (``--moe-options experiment``, for target WF: input
 derivatives, standard-day correction, output-error start, simulation-error term) or the
-method's defaults (``--moe-options default``, seed 003's derivative-only training).
+method's defaults (``--moe-options default``, the turboshaft-moe paper's derivative-only training).
 
 ``--breakdown`` instead profiles one MoE fit on ``--train-rows`` training rows (turboshaft-wf's
 200,000 by default, the experiment's options, the first grid point) part by part, in one process:
@@ -168,7 +168,7 @@ def _best_of(fn, repeats: int) -> tuple[float, object]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", choices=["small", "full"], default="full", help="full = the seed's 13 h (default)")
+    parser.add_argument("--size", choices=["small", "full"], default="full", help="full = the turboshaft-moe paper's 13 h (default)")
     parser.add_argument("--target", default="WF")
     parser.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)), help="CPU threads for torch/BLAS")
     parser.add_argument("--fit-rows", type=int, default=30000, help="training rows (whole trajectories) for the simulated models")
@@ -214,8 +214,8 @@ def main(argv: list[str] | None = None) -> None:
               + (f"  {extra}" if extra else ""))
 
     prediction_view = test.without_targets()
-    sindy = SINDy(derivative="kalman", derivative_chunk=512, threshold_scale="absolute")  # seed 003's absolute threshold
-    for degree in (1, 2, 3):  # the lowest threshold of the seed's range keeps most library terms
+    sindy = SINDy(derivative="kalman", derivative_chunk=512, threshold_scale="absolute")  # the turboshaft-moe paper's absolute threshold
+    for degree in (1, 2, 3):  # the lowest threshold of the paper's range keeps most library terms
         fit = sindy.fit(train, {"degree": degree, "threshold": 0.01, "alpha": 1e-4}, rng)
         wall, preds = _best_of(lambda: sindy.predict(fit, prediction_view), args.repeats)
         label = f"SINDy degree {degree} ({int(np.count_nonzero(fit.coef))} terms), RK4"

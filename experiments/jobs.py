@@ -164,7 +164,7 @@ def refit_samples(spec: ExperimentSpec, problem: Problem, train: Samples, repeti
     ``[selection] refit = true`` (the default) adds the validation part once it has served
     to select (all of it in simulation mode, whole records from their first sample; in
     static and window modes a subsample of ``train_size`` rows drawn like the training one).
-    ``refit = false`` keeps the fit on the training part only (the turboshaft seed's protocol).
+    ``refit = false`` keeps the fit on the training part only (the turboshaft-moe paper's protocol).
     """
     part = problem.parts.get("validation")
     if not (spec.selection.refit and spec.selection.kind == "validation" and part is not None):

@@ -1,6 +1,6 @@
 """Learning curves: test error against the months of training data a method was given.
 
-Seed 000 claims the hybrid model "can be reliably used already after a few months worth
+The egt-hybrid paper claims the hybrid model "can be reliably used already after a few months worth
 of measurements, in contrast with pure DDMs that would require at least half a year".
 A learning curve checks such a claim under the experiment's own protocol: for each
 amount N (in months), the training part of every split is cut to its first N months

@@ -3,7 +3,7 @@
 For each (target, window, split) of the run, every chosen method is fitted again on
 that repetition's training trajectories with the hyperparameters the run selected
 (read from the stored job), and a few trajectories of the evaluated part are drawn as in
-seed 003's Figs. 3-6: all methods against the truth (scaled by mean |y| over training),
+the turboshaft-moe paper's Figs. 3-6: all methods against the truth (scaled by mean |y| over training),
 the run-time inputs, and the mixing weights of the first method that declares them
 (``Method.explain``'s ``"weights"``: a mixture of experts' gate, a cascade's downstream
 gate, evaluated along the simulated trajectory) as stacked bands.

@@ -3,7 +3,7 @@
 Starting from all variables, each step drops the variable whose removal hurts the
 validation error least; the ranking is the reverse order of removal (the last variable
 standing is the most important). In window mode a variable's whole lagged series is one
-feature, as in the diesel seed. For hybrid methods that feed the physical model's
+feature, as in the egt-hybrid paper. For hybrid methods that feed the physical model's
 prediction in as a feature, that prediction is a candidate variable named ``PM``.
 
 Hyperparameters are selected once on all variables (the run's selection scheme), then

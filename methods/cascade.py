@@ -1,4 +1,4 @@
-"""Cascades (seed 003): an upstream model of an intermediate signal feeds a downstream model of the target.
+"""Cascades (turboshaft-moe): an upstream model of an intermediate signal feeds a downstream model of the target.
 
 The turboshaft torque TRQ depends on the fuel flow WF, which is measured only in a test
 campaign (role ``internal``: in the training samples' ``Z``, never at prediction). A
@@ -6,10 +6,10 @@ cascade fits an *upstream* model of WF on the run-time inputs, then a *downstrea
 model of TRQ whose inputs are the run-time inputs plus the intermediate column:
 
 - ``source = "model"``: the downstream is fed the upstream's prediction of WF, during
-  training (``train_on = "model"``, the seed's choice: the downstream learns to live with
+  training (``train_on = "model"``, the paper's choice: the downstream learns to live with
   the upstream's errors) and at prediction. This is what runs in flight: MoE-NFIR,
   SINDy-NFIR (upstream NFIR) and MoE-MoE (upstream MoE), named downstream-upstream as in
-  the seed's Table 3.
+  the turboshaft-moe paper's Table 3.
 - ``source = "true"``: the measured intermediate is fed at prediction too. It is not
   available at run time, so this is an *ideal* baseline, and it needs the measured WF at
   prediction: the experiment must give WF the role ``input`` (``roles = { WF = "input" }``).
@@ -23,7 +23,7 @@ run-time inputs and the target at the same instant, fitted on the training rows 
 evaluated at the first row (inputs and the measured initial target y0 are what every
 simulation starts from). The same estimate is used in training and at prediction.
 
-Surrogates (option ``surrogates``, e.g. ``["NG"]``): internal signals that the seed
+Surrogates (option ``surrogates``, e.g. ``["NG"]``): internal signals that the paper
 reconstructs by NFIR from the run-time inputs and uses as schedulers. Each is fitted first
 (NFIR on the run-time inputs, target from ``Z``) and its reconstruction is appended as an
 input column that the upstream and the downstream models both see.
@@ -142,7 +142,7 @@ class Cascade(Method):
 
     # -- components -----------------------------------------------------------------------
     def _downstream(self, targets: Sequence[str], intermediate: str) -> Method:
-        """The downstream method; one that declares a ``signs`` option (MoE) gets the seed's signs (own state -,
+        """The downstream method; one that declares a ``signs`` option (MoE) gets the turboshaft-moe paper's signs (own state -,
         intermediate +) unless told otherwise."""
         opts = dict(self.options["downstream_options"])
         declares_signs = "signs" in self.down_cls.default_options()
@@ -362,7 +362,7 @@ def _plain(v: Any) -> Any:
     return v.item() if hasattr(v, "item") else v
 
 
-# -- the seed's Table 3 rows ---------------------------------------------------------------------
+# -- the turboshaft-moe paper's Table 3 rows -------------------------------------------------
 class MoENFIR(Cascade):
     """MoE for the target fed by the NFIR-reconstructed intermediate (turboshaft-moe: MoE-NFIR)."""
 

@@ -91,6 +91,18 @@ class InputHistory:
                 f"longest of the {shape.describe()}; use horizons below {longest * shape.dt:g} s (or leave horizons "
                 "out to derive them from the data)")
 
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """The declared bounds and the input window's, for model selection's extension past a grid's edge: from
+        one sample (0 where the grid holds 0: no past at all) to the longest training record."""
+        bounds = dict(super().search_bounds(data))  # type: ignore[misc]
+        sizes = [len(s.U) for s in data.segments]
+        if not sizes or data.dt <= 0:
+            return bounds
+        horizons = self.history_space(data)["horizon"]
+        low = 0.0 if len(horizons) and float(np.min(horizons)) <= 0 else float(data.dt)
+        bounds["horizon"] = (low, float(max(sizes) * data.dt))
+        return bounds
+
     def history_space(self, data: Samples) -> SearchSpace:
         """Horizons (s) and strides as given, else the horizons derived from the memory of ``data``."""
         o = self.options

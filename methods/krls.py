@@ -1,4 +1,4 @@
-"""Exact kernel regularised least squares with a Gaussian kernel (the seeds' KRLS).
+"""Exact kernel regularised least squares with a Gaussian kernel (the KRLS of the egt-hybrid and turboshaft-moe papers).
 
 The whole (gamma, lambda) grid costs at most one Householder tridiagonalisation of the
 training kernel per gamma (a third of an eigendecomposition): every lambda is then an

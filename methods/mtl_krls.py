@@ -1,14 +1,14 @@
-"""``mtl-krls``: the hybrid model of the diesel seed, learning from measurements and the PM at once.
+"""``mtl-krls``: the hybrid model of the egt-hybrid paper, learning from measurements and the PM at once.
 
 Two tasks share the inputs: the measured target y and the physical model's prediction p.
-With a shared model w and task models w_y, w_p (seed 000, eq. 20)::
+With a shared model w and task models w_y, w_p (egt-hybrid, eq. 20)::
 
     min |Phi w - y|^2 + |Phi w - p|^2 + |Phi w_y - y|^2 + |Phi w_p - p|^2
         + lambda |w|^2 + theta (|w - w_y|^2 + |w - w_p|^2)
 
 By the representer theorem w = Phi^T a, w_y = Phi^T b, w_p = Phi^T c. In the eigenbasis
 of Q = Phi Phi^T = V diag(s) V^T the stationarity conditions decouple into one 3x3
-system per component (DESIGN section 5)::
+system per component (solved in closed form below; docs/methods.md)::
 
     [[2s + lambda + 2 theta, -theta, -theta],   [a~]   [y~ + p~]
      [-theta,       s + theta,       0     ], . [b~] = [y~     ]
@@ -30,7 +30,7 @@ the summed targets. Model selection therefore takes the KRLS path (``shifted_sol
 Lanczos with a residual certificate, Cholesky or one tridiagonalisation per gamma) with
 two shifts per (lambda, theta); the y-task model keeps the eigendecomposition.
 
-The shared model h(x) = sum_i a_i K(x_i, x) is the prediction, as in the seed. Note what
+The shared model h(x) = sum_i a_i K(x_i, x) is the prediction, as in the paper. Note what
 the closed form says: a~ depends on y and p only through y + p, so the shared model is a
 spectral smoother of the average (y + p) / 2. The y-task model (``predict_with = "task"``)
 is offered for comparison. The PM's prediction is also an input feature
@@ -118,7 +118,7 @@ class MTLKRLS(KRLS):
              "towards the shared one (low, high, count)", searches=("theta",), bound=(1e-10, 1e10)),
         flag("pm_feature", True, "the physical model's prediction is also an input feature"),
         flag("pm_task", True, "learn the PM's prediction as a second task (false: the y task twice, no PM task)"),
-        choice("predict_with", "shared", "predict with the shared model (the seed's) or the y-task model",
+        choice("predict_with", "shared", "predict with the shared model (the egt-hybrid paper's) or the y-task model",
                ("shared", "task"), message="{name} must be 'shared' or 'task', got {value}"),
     )
 

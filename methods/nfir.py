@@ -1,4 +1,4 @@
-"""``nfir``: nonlinear finite impulse response, KRLS on lagged run-time inputs only (seed 003, eq. 11).
+"""``nfir``: nonlinear finite impulse response, KRLS on lagged run-time inputs only (turboshaft-moe, eq. 11).
 
 y(t) ~ f(u(t), u(t - s dt), u(t - 2 s dt), ..., u(t - h)) with the stride ``s`` (samples)
 and the horizon ``h`` as hyperparameters, f a Gaussian-kernel regularised least-squares

@@ -14,7 +14,7 @@ pysindy's ``simulate`` (one scipy ``solve_ivp`` per segment); every model of the
 every segment are stepped together (``sindy_grid.simulate_candidates``) by a fixed-step
 integrator (RK4 or Euler at the data's sample period, inputs held between samples). A trajectory that goes non-finite or leaves a bounded envelope around the
 training range is stopped, held at its last in-envelope value and flagged diverged
-(seed 003 reports SINDy blow-ups; they must be counted, never silently dropped).
+(the turboshaft-moe paper reports SINDy blow-ups; they must be counted, never silently dropped).
 
 Thresholds relative to the data (the default, ``threshold_scale = "relative"``). The STLSQ
 threshold removes a term of the equation for d(x_k)/dt when its coefficient is smaller
@@ -31,7 +31,7 @@ library explains little of its derivative. An absolute threshold instead means "
 system with time constants of minutes is below 0.01/s). Implemented exactly by dividing
 each state's derivative by its unit before STLSQ and multiplying the coefficients back
 (every ridge step is linear in the target). The default grid is 0.01 .. 0.5 relative;
-``threshold_scale = "absolute"`` restores the seed's absolute thresholds (default grid
+``threshold_scale = "absolute"`` restores the turboshaft-moe paper's absolute thresholds (default grid
 1e-2 .. 1e3, per ``time_scale`` second), which the turboshaft experiments pin. With
 relative thresholds ``time_scale`` is only the unit of the reported equations. A state
 whose every term is still removed (STLSQ's later passes may drop the first pass's
@@ -77,7 +77,7 @@ DERIVATIVE_SCALES = ("segment", "training")
 """What ``derivative_alpha`` is relative to: each segment's own standard deviation (its derivative then
 depends on the segment alone and is computed once per process), or the training set's (before)."""
 DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
-"""Default STLSQ threshold grids: relative to each derivative's rms, or seed 003's absolute range."""
+"""Default STLSQ threshold grids: relative to each derivative's rms, or the turboshaft-moe paper's absolute range."""
 MIN_ROWS = 4
 _PREPARE_OPTIONS = ("derivative", "derivative_solver", "derivative_chunk", "derivative_margin", "derivative_max_iter",
                     "derivative_scale", "time_scale", "envelope")
@@ -304,7 +304,7 @@ class SINDy(Method):
         listing("degrees", (1, 2, 3), "polynomial degrees of the library searched", items="float", searches=("degree",),
                 edges="high", check=_degrees),
         choice("threshold_scale", "relative", "STLSQ thresholds relative to the rms of each state's derivative, or "
-               "absolute (per time_scale second, the seed's)", THRESHOLD_SCALES),
+               "absolute (per time_scale second, the turboshaft-moe paper's)", THRESHOLD_SCALES),
         span("threshold_range", None, "STLSQ thresholds searched (log grid); None = (0.01, 0.5) relative or "
              "(1e-2, 1e3) absolute", nullable=True, searches=("threshold",)),
         whole("n_thresholds", 4, "thresholds on the grid", low=1),

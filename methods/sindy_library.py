@@ -24,7 +24,7 @@ DERIVATIVE_KINDS = ("trend_filtered", "kalman")
 """Regularised differentiators of the ``derivative`` package that SINDy offers.
 
 ``trend_filtered`` with order 0 is total-variation regularised differentiation (the
-seed's choice); ``kalman`` is the Kalman (RTS) smoother, quadratic regularisation."""
+turboshaft-moe paper's choice); ``kalman`` is the Kalman (RTS) smoother, quadratic regularisation."""
 INTEGRATORS = ("rk4", "euler")
 
 

@@ -1,4 +1,4 @@
-"""The guard: check a run against a published baseline (DESIGN sec. 7).
+"""The guard: check a run against a published baseline (docs/reports.md).
 
 The baseline file (its format, and making, writing, finding and reading one) is
 ``results/baseline.py``; its names stay importable from here. This module is the

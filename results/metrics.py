@@ -1,7 +1,7 @@
-"""Point metrics of one prediction against its target (DESIGN sec. 6 and 9), vectorised with numpy.
+"""Point metrics of one prediction against its target (docs/design.md, "Metrics"), vectorised with numpy.
 
 Pooled metrics (MAE, RMSE, NRMSE, fit, R^2, PPMCC, MAPE) treat all rows alike; RMAE is
-seed 003's segment-averaged relative MAE, so long segments do not dominate; NRMSE and
+the turboshaft-moe paper's segment-averaged relative MAE, so long segments do not dominate; NRMSE and
 fit are also summarised per segment (the identification view: one fit per record).
 Every input is validated: arrays must be 1-D, equally long, non-empty and finite, and a
 failure names the argument, the segment and the row.
@@ -434,7 +434,7 @@ def segment_rmae(
 def rmae(
     segments_true: Sequence[object], segments_pred: Sequence[object], train_scale: float
 ) -> float:
-    """Seed 003's relative MAE in percent: mean over segments of segment MAE, / `train_scale` * 100.
+    """The turboshaft-moe paper's relative MAE in percent: mean over segments of segment MAE, / `train_scale` * 100.
 
     `train_scale` is mean |y| over the training data. Averaging per segment keeps
     long segments from dominating (unlike pooled MAE / scale).

@@ -1,4 +1,4 @@
-"""Figures as PNG files: simulated vs true trajectories with MoE gate bands (seed 003, Figs. 3-6), scatter.
+"""Figures as PNG files: simulated vs true trajectories with MoE gate bands (turboshaft-moe, Figs. 3-6), scatter.
 
 Pure functions: arrays in, one Figure (``*_figure``) or one PNG (``*_plot``) out, nothing
 else touched. They draw on matplotlib's object-oriented API with the Agg canvas, so no
@@ -92,7 +92,7 @@ def trajectory_figure(
     """Simulated vs true output on top, optional inputs in the middle, MoE gate weights as stacked bands below.
 
     ``gate`` is (N, n_experts) (rows sum to 1) or None (no band panel). With ``scale``
-    (mean |y| over training) the outputs are divided by it, as in the seed's figures, and
+    (mean |y| over training) the outputs are divided by it, as in the turboshaft-moe paper's figures, and
     the axis says so in words; without it the axis is ``ylabel [unit]``. Inputs are
     standardised (z-scores) and named with their ``input_units``. Times are in seconds.
     Returns the matplotlib Figure (on an Agg canvas).
@@ -159,7 +159,7 @@ def scatter_figure(
     size: tuple[float, float] = (6.0, 6.0),
     dpi: int = 100,
 ):
-    """Measured vs predicted with the identity line (seed 000's scatter plots), axes ``label [unit]``; the Figure."""
+    """Measured vs predicted with the identity line (the egt-hybrid paper's scatter plots), axes ``label [unit]``; the Figure."""
     t = _vector(y_true, "y_true")
     p = _vector(y_pred, "y_pred", t.size)
     if t.size == 0:

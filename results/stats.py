@@ -1,4 +1,4 @@
-"""Intervals over repetitions and paired tests between methods (seed protocol, DESIGN sec. 6).
+"""Intervals over repetitions and paired tests between methods (the protocol of docs/design.md).
 
 Every function here works on *repetition-level* values (one metric value per
 repetition, typically R = 30). The caller removes failed repetitions first; a

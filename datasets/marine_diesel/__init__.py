@@ -1,11 +1,11 @@
-"""The built-in ``marine-diesel`` data set (synthetic) and its physical model (seed 000).
+"""The built-in ``marine-diesel`` data set (synthetic) and its physical model (egt-hybrid).
 
 * ``generate(size, seed, progress)``: the synthetic data set (``generate.py``), driven by
   a vessel profile (``profile.py``) through a rich mean-value "true engine"
   (``engine.py``, ``thermal.py``, ``sensors.py``).
-* ``MarineDieselPM``: seed 000's mean-value physical model, modules A-F (``pm.py``).
+* ``MarineDieselPM``: the egt-hybrid paper's mean-value physical model, modules A-F (``pm.py``).
 * ``calibrate_to_fat``: weighted least-squares calibration of the PM to factory
-  acceptance test points (``calibration.py``); ``load_fat`` reads the seed's FAT table
+  acceptance test points (``calibration.py``); ``load_fat`` reads the egt-hybrid paper's FAT table
   shipped as ``fat_seed000.csv``; ``simulator_fat`` measures FAT points on the true
   engine (``fat.py``); ``simulator_fat_params(seed)`` is the PM calibrated on them, the
   calibration the ``marine-diesel`` experiments use (``MarineDieselPM`` default; the

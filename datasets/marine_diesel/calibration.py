@@ -1,6 +1,6 @@
 """Calibration of the PM to factory-acceptance-test points by weighted least squares.
 
-As in seed 000 sec. 5.1 the PM is tuned to the FAT protocol; as in seed 001 sec. 3.1 the
+As in egt-hybrid sec. 5.1 the PM is tuned to the FAT protocol; as in hil-diesel sec. 3.1 the
 tuning is a (weighted) least-squares fit, here ``scipy.optimize.least_squares`` with
 physical bounds over the free parameters of ``pm.FAT_FREE``. The residuals are the
 percentage errors PE = (PM - FAT) / FAT of the six FAT quantities at every speed,
@@ -10,7 +10,7 @@ its default (a Tikhonov term) so that parameters the FAT cannot see stay put.
 Inputs of each FAT point: its speed and its fuel. When the table lists rack positions
 (``fuel_rack_pct``, as ``simulator_fat`` does) they are the PM's input, the pump law
 (fuel_nom_kg, rack_zero_pct) is fitted too and the brake power is an extra residual.
-Otherwise (the seed's table) the fuel per cycle follows from the FAT sfc and the load:
+Otherwise (the egt-hybrid paper's table) the fuel per cycle follows from the FAT sfc and the load:
 fuel flow = sfc x P, with P on the propeller law (``fat.propeller_law_power_w``) or
 from a ``brake_power_kw`` column; the rack is then whatever the pump law makes of it.
 """
@@ -156,7 +156,7 @@ def _seed_fat_params_cached() -> tuple[tuple[str, float], ...]:
 
 
 def seed_fat_params() -> dict[str, float]:
-    """PM parameters calibrated on the seed's FAT fixture (computed once per process)."""
+    """PM parameters calibrated on the egt-hybrid paper's FAT fixture (computed once per process)."""
     return dict(_seed_fat_params_cached())
 
 
@@ -173,7 +173,7 @@ def simulator_fat_params(seed: int = 0) -> dict[str, float]:
 
     This is the calibration the ``marine-diesel`` experiments use: the synthetic data
     come from that engine, so its own factory test is the PM's calibration, as the
-    seed's PM was calibrated on its engine's FAT. Computed once per process and seed.
+    egt-hybrid paper's PM was calibrated on its engine's FAT. Computed once per process and seed.
     """
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise DataError(f"simulator_fat_params: seed must be a non-negative integer, got {seed!r}")

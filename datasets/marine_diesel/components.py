@@ -49,7 +49,7 @@ def safe_newton(fun: Callable, lo: np.ndarray, hi: np.ndarray, x: np.ndarray, it
 # -- compressor and intercooler ------------------------------------------------------------
 @dataclass(frozen=True)
 class Compressor:
-    """The compressor's speed line at this step's rotor speed and inlet state (after seed 001 eqs. 3-7).
+    """The compressor's speed line at this step's rotor speed and inlet state (after hil-diesel eqs. 3-7).
 
     Speed lines m = m_max(U) (1 - (H / H_max(U))^2) in corrected flow, H = pi^((k-1)/k) - 1
     the isentropic head; the filter and intercooler pressure losses follow the previous
@@ -105,7 +105,7 @@ def intercooler(k: Any, m_c: np.ndarray, t_c_out: np.ndarray, t_coolant: np.ndar
 # -- gas exchange and receivers ------------------------------------------------------------
 @dataclass(frozen=True)
 class GasExchange:
-    """Trapped and scavenge flows (seed 001 eqs. 13-14) at this step's engine speed."""
+    """Trapped and scavenge flows (hil-diesel eqs. 13-14) at this step's engine speed."""
 
     k: Any
     ev_speed: np.ndarray
@@ -152,7 +152,7 @@ def intake_receiver(k: Any, h: float, comp: Compressor, gx: GasExchange, p_im_ol
 # -- cylinders and exhaust manifold --------------------------------------------------------
 @dataclass(frozen=True)
 class Cylinders:
-    """A bank's cylinders at this step's intake state and fuel (seed 001 eqs. 17-21): combustion and
+    """A bank's cylinders at this step's intake state and fuel (hil-diesel eqs. 17-21): combustion and
     indicated efficiencies, pumping work, wall heat and the cylinder energy balance."""
 
     k: Any

@@ -1,6 +1,6 @@
 """Named constants of the marine-diesel case: engine data, gas properties, logging.
 
-The engine resembles the one of seed 000 (sec. 3 and Table 4): a four-stroke,
+The engine resembles the one of egt-hybrid (sec. 3 and Table 4): a four-stroke,
 medium-speed, 12-cylinder V propulsion diesel (two banks of six cylinders, one
 turbocharger per bank) on one shaft of a twin-shaft patrol vessel with a
 controllable-pitch propeller. Its factory acceptance test (FAT) points lie on the
@@ -36,11 +36,11 @@ N_MAX_RPM = 1030.0
 N_IDLE_RPM = 400.0
 """Lowest engine speed of the combinator curves, rpm."""
 FAT_SPEEDS_RPM = (631.0, 795.0, 910.0, 947.0, 1000.0, 1031.0)
-"""Speeds of the seed's FAT points (Table 4), rpm."""
+"""Speeds of the egt-hybrid paper's FAT points (Table 4), rpm."""
 
 # -- fuel ----------------------------------------------------------------------------
 LHV_J_PER_KG = 42.7e6
-"""Lower heating value of the marine gas oil, J/kg (seed 000, sec. 5.1: 42,700 kJ/kg)."""
+"""Lower heating value of the marine gas oil, J/kg (egt-hybrid, sec. 5.1: 42,700 kJ/kg)."""
 AFR_STOICH = 14.5
 """Stoichiometric air/fuel mass ratio of diesel fuel, kg air per kg fuel."""
 
@@ -75,9 +75,9 @@ RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 
 # -- logging -------------------------------------------------------------------------
 DT_LOG_S = 3.0
-"""Sample period of the vessel's logging system, s (1/3 Hz, seed 000 sec. 3)."""
+"""Sample period of the vessel's logging system, s (1/3 Hz, egt-hybrid sec. 3)."""
 FULL_HOURS = 3347.0
-"""Logged hours of the seed's data set (3,988,939 samples)."""
+"""Logged hours of the egt-hybrid paper's data set (3,988,939 samples)."""
 SMALL_HOURS = 72.0
 """Logged hours of the ``small`` size (a few days, for tests)."""
 

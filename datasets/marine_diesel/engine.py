@@ -1,21 +1,21 @@
 """The "true engine" of the marine-diesel generator: a mean-value model with maps.
 
-It is deliberately richer than the physical model of seed 000 (sec. 4.2, our ``pm``),
-in the pattern of the hardware-in-the-loop model of seed 001 (sec. 2.1-2.3):
+It is deliberately richer than the physical model of egt-hybrid (sec. 4.2, our ``pm``),
+in the pattern of the hardware-in-the-loop model of hil-diesel (sec. 2.1-2.3):
 
-* compressor (after seed 001 eqs. 3-7, our own parameterisation): speed lines
+* compressor (after hil-diesel eqs. 3-7, our own parameterisation): speed lines
   m = m_max(U) (1 - (H / H_max(U))^2) in corrected flow, H = pi^((k-1)/k) - 1 the
   isentropic head, H_max proportional to the tip speed squared, m_max growing with it;
   efficiency a quadratic hill in (flow fraction, tip speed); fouling lowers it;
 * air filter and intercooler pressure losses; intercooler effectiveness
-  1 - exp(-NTU), NTU falling with air flow and with fouling (seed 001 eq. 11);
+  1 - exp(-NTU), NTU falling with air flow and with fouling (hil-diesel eq. 11);
 * intake and exhaust receivers with filling dynamics dp/dt = R T / V (m_in - m_out)
-  (seed 001 eq. 12);
+  (hil-diesel eq. 12);
 * volumetric efficiency depending on speed and on the scavenge pressure difference,
-  plus valve-overlap scavenge air blown through to the exhaust (seed 001 eq. 13-14);
+  plus valve-overlap scavenge air blown through to the exhaust (hil-diesel eq. 13-14);
 * combustion efficiency falling at low load and at low air excess; gross indicated
   efficiency depending on air excess, speed and load; pumping work; friction mean
-  effective pressure quadratic in speed (seed 001 eqs. 17-21); attached pumps;
+  effective pressure quadratic in speed (hil-diesel eqs. 17-21); attached pumps;
 * heat to the cylinder walls; cylinder-outlet temperature from the cylinder energy
   balance; mixing with scavenge air; heat exchange with the exhaust-manifold wall, a
   thermal mass with its own state (minutes), insulated towards the engine room;
@@ -24,10 +24,10 @@ in the pattern of the hardware-in-the-loop model of seed 001 (sec. 2.1-2.3):
   exhaust waste gate opening with charge pressure bypasses gas around the turbine
   (more boost at part load, limited boost at full load);
 * turbocharger rotor inertia, J w dw/dt = P_turbine - P_friction - P_compressor
-  (seed 001 eq. 10);
+  (hil-diesel eq. 10);
 * a governor that meters fuel to deliver the demanded brake power, with rack and
   boost (smoke) limits, and a fast fuel actuator;
-* first-order thermocouples on the exhaust temperatures (seed 000 eqs. 4-5 pattern).
+* first-order thermocouples on the exhaust temperatures (egt-hybrid eqs. 4-5 pattern).
 
 Each bank (A, B) has its own turbocharger, receivers and thermocouples, with slightly
 different constants. The integration uses a 1.5 s step (two steps per logged sample):

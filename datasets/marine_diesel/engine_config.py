@@ -17,7 +17,7 @@ class EngineConfig:
     Units are SI and in the names (``_m``, ``_m2``, ``_kg_s``, ``_pa``, ``_w_k``, ``_s``...);
     names without a unit are dimensionless (efficiencies, exponents, fractions, and
     ``*_scale`` loads as fractions of the MCR fuel per cycle). Values were chosen so
-    that the shop test (``fat.simulator_fat``) resembles seed 000's Table 4 with
+    that the shop test (``fat.simulator_fat``) resembles the egt-hybrid paper's Table 4 with
     realistic air excess, and the energy balance closes.
     """
 

@@ -1,4 +1,4 @@
-"""Factory-acceptance-test (FAT) points: the seed's fixture and FAT on the true engine.
+"""Factory-acceptance-test (FAT) points: the egt-hybrid paper's fixture and FAT on the true engine.
 
 ``load_fat`` reads ``fat_seed000.csv``: seed 000's Table 4 with the paper's PM values
 and percentage errors, columns named by physics (the paper's labels are in the file's
@@ -12,10 +12,10 @@ that the marine experiment uses.
 Pressure assumption: the paper calls its pressures "relative"; the fixture's
 pressures are read as absolute bar (the project's reading: charge air 1.25-4.48 bar),
 ``calibrate_to_fat(..., pressure="gauge")`` reads them above ambient instead. Under the
-absolute reading the seed's turbine-outlet temperatures at 631 and 795 rpm need more
+absolute reading the paper's turbine-outlet temperatures at 631 and 795 rpm need more
 temperature drop than an adiabatic turbine gives; the PM's polytropic exponent absorbs it.
 
-FAT load assumption: the seed lists speeds, not loads. 631, 795, 910, 947, 1000 and
+FAT load assumption: the paper lists speeds, not loads. 631, 795, 910, 947, 1000 and
 1031 rpm are (0.25, 0.5, 0.75, 0.85, 1.0, 1.1) ** (1/3) x 1000 rpm, so the test runs
 along the propeller law P = P_MCR (N / N_MCR)^3 with MCR = 5.0 MW at 1000 rpm
 (``constants.P_MCR_W``, ``constants.N_MCR_RPM``).
@@ -133,8 +133,8 @@ def check_fat(fat: pd.DataFrame, where: str) -> pd.DataFrame:
 def simulator_fat(seed: int = 0) -> pd.DataFrame:
     """Steady shop-test points measured on the true engine of ``generate(seed=seed)``.
 
-    Same speeds and load law as the seed's FAT; shop conditions 25 degC, 1.0 bar,
-    LT water 32 degC; clean engine (no fouling); measurement noise drawn from the seed.
+    Same speeds and load law as the egt-hybrid paper's FAT; shop conditions 25 degC, 1.0 bar,
+    LT water 32 degC; clean engine (no fouling); measurement noise drawn from the random seed.
     """
     cfg = engine_for_seed(seed)
     speed = np.array(C.FAT_SPEEDS_RPM)

@@ -1,13 +1,13 @@
-"""``generate``: the synthetic ``marine-diesel`` data set (seed 000's case, labelled synthetic).
+"""``generate``: the synthetic ``marine-diesel`` data set (the egt-hybrid paper's case, labelled synthetic).
 
 Pipeline: operational profile (``profile``) -> true engine, batched over lanes of the
 voyages (``engine.simulate_rows``) -> thermal blocks (``thermal``) -> sensors
 (thermocouple lags inside the engine loop, then noise and logger resolution,
 ``sensors``) -> the rows the logger kept, cut into segments at logging gaps.
 
-The channels are the ~45 of seed 000's Table 1 (names ours, units in the schema).
+The channels are the ~45 of the egt-hybrid paper's Table 1 (names ours, units in the schema).
 Roles: run-time measurements are ``input``; the two targets, the bank-averaged exhaust
-temperatures at turbine inlet and outlet (seed 000 Table 3, eq. 6: the mean of the two
+temperatures at turbine inlet and outlet (egt-hybrid Table 3, eq. 6: the mean of the two
 per-bank thermocouples), are ``output``; the per-bank exhaust temperatures (before and
 after the turbine, and the cylinder-outlet averages) are ``internal``: they are the
 targets' components, so using them as inputs would leak the answer.
@@ -16,7 +16,7 @@ Pressures are absolute (bar abs) except the peak cylinder pressure (bar).
 
 The meta names the physical model (``marine-diesel-pm``) and its calibration,
 ``pm_calibration = "simulator"``: the PM is calibrated on the factory-test points of
-this seed's true engine (``fat.simulator_fat``), as the seed's PM was calibrated on its
+this random seed's true engine (``fat.simulator_fat``), as the egt-hybrid paper's PM was calibrated on its
 own engine's FAT; ``MarineDieselPM.for_dataset(meta)`` reads it.
 """
 

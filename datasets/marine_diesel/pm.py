@@ -1,8 +1,8 @@
-"""The physical model (PM) of seed 000 sec. 4.2: a mean-value engine model, modules A-F.
+"""The physical model (PM) of egt-hybrid sec. 4.2: a mean-value engine model, modules A-F.
 
 Inputs: engine speed N and fuel-rack set-point X (dataset columns ``engine_speed`` and
 ``fuel_rack``). Outputs: bank-averaged exhaust temperature at turbine inlet and outlet
-(seed 000 eq. 6). The modules, as the seed lists them (our own equations):
+(egt-hybrid eq. 6). The modules, as the paper lists them (our own equations):
 
 A. fuel pump: m_f = m_f,nom (X - X_0) / 100 per cylinder and cycle, through a first-order
    lag (pump inertia and ignition delay).
@@ -296,27 +296,27 @@ def steady_outputs(params: Mapping[str, Any], speed: np.ndarray, fuel: np.ndarra
 
 CALIBRATIONS = ("simulator", "seed")
 """Where the PM's default parameters come from: the FAT points of the generator's own
-engine ("simulator", for the synthetic data) or seed 000's FAT fixture ("seed")."""
+engine ("simulator", for the synthetic data) or the egt-hybrid paper's FAT fixture ("seed", the value's old name)."""
 META_KEY = "pm_calibration"
 """Dataset meta entry naming the calibration (``CALIBRATIONS``); the meta ``seed`` picks the engine."""
 
 
 class MarineDieselPM:
-    """Seed 000's mean-value physical model as a ``PhysicalModel`` (datasets/physical.py).
+    """The egt-hybrid paper's mean-value physical model as a ``PhysicalModel`` (datasets/physical.py).
 
     Parameters, in order of precedence: ``params`` if given; else the FAT calibration
     named by ``calibration``: "simulator" (default) fits the PM to the shop-test points
     of the true engine that generated ``marine-diesel`` with ``seed``
     (``calibration.simulator_fat_params``) -- the calibration the marine experiments
-    use, because the synthetic data come from that engine; "seed" fits it to seed
-    000's FAT fixture (``calibration.seed_fat_params``; also ``enginebench calibrate
+    use, because the synthetic data come from that engine; "seed" fits it to the
+    egt-hybrid paper's FAT fixture (``calibration.seed_fat_params``; also ``enginebench calibrate
     pm``). ``for_dataset(meta)`` reads the choice from a dataset's meta
     (``meta["pm_calibration"]`` and ``meta["seed"]``, written by the generator).
 
     The calibration runs once per process and is resolved before the model is
     pickled, so worker processes receive the parameters instead of recomputing them.
     ``calibrate`` does not look at the operating data: the PM is calibrated on
-    factory-test points, as in the seed.
+    factory-test points, as in the egt-hybrid paper.
     """
 
     name = PM_NAME
@@ -369,7 +369,7 @@ class MarineDieselPM:
         return f"MarineDieselPM(calibration={self.calibration!r}, seed={self.seed})"
 
     def calibrate(self, segments: Sequence[Mapping[str, np.ndarray]]) -> dict[str, Any]:
-        """The FAT-calibrated parameters; the operating segments are not used (seed 000 sec. 5.1)."""
+        """The FAT-calibrated parameters; the operating segments are not used (egt-hybrid sec. 5.1)."""
         return self.params
 
     def simulate(self, params: Mapping[str, Any], segment: Mapping[str, np.ndarray],

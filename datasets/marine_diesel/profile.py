@@ -1,6 +1,6 @@
 """The vessel's operational profile: voyages, combinator modes, load, sea and fouling.
 
-Seed 000 (sec. 3, sec. 5.1 and Fig. 7) describes a twin-shaft patrol vessel with
+The egt-hybrid paper (sec. 3, sec. 5.1 and Fig. 7) describes a twin-shaft patrol vessel with
 controllable-pitch propellers (CPP) and one diesel per shaft, run on two combinator
 curves: *transit* (higher pitch, lower speed, slow acceleration) and *manoeuvre* (low
 pitch, high speed, fast acceleration), with speeds well below the FAT's 630 rpm and
@@ -165,7 +165,7 @@ def transit_combinator(lever: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Transit mode: pitch first (to 80 % at lever 0.45), then speed from idle to MCR with pitch to 100 %.
 
     Below full speed the pitch stays under design, so the engine runs below the
-    propeller law at low speed, as the seed's vessel does (sec. 5.1).
+    propeller law at low speed, as the egt-hybrid paper's vessel does (sec. 5.1).
     """
     frac = np.clip((lever - TRANSIT_SPEED_START) / (1.0 - TRANSIT_SPEED_START), 0.0, 1.0)
     speed = C.N_IDLE_RPM + (C.N_MCR_RPM - C.N_IDLE_RPM) * frac

@@ -5,7 +5,7 @@ sample period (zero-order hold on the sample *ending* at t_k):
 y_k = a y_{k-1} + (1 - a) u_k with a = exp(-dt / tau), evaluated with
 ``scipy.signal.lfilter`` run by run (a run is a stretch of rows whose state carries on;
 each run starts at rest, y = u, unless a start value is given). This is the
-thermocouple model of seed 000 eqs. 4-5 (first-order response with a time constant
+thermocouple model of egt-hybrid eqs. 4-5 (first-order response with a time constant
 and a bias) and the thermal inertia of the cooling-water and lube-oil blocks.
 
 Logged channels get white Gaussian noise and are rounded to the logger's resolution;

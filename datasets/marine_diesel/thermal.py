@@ -1,6 +1,6 @@
 """Thermal blocks of the true engine: cooling water, lube oil, bearings, splash oil, fuel.
 
-In the pattern of seed 001 sec. 2.5 (the cooling block integrates heat flows with a
+In the pattern of hil-diesel sec. 2.5 (the cooling block integrates heat flows with a
 thermal capacity; thermostats hold set-points): each temperature is a steady value set
 by the heat flows of the engine loop and by a thermostat, passed through a first-order
 lag for the thermal mass (``sensors.first_order_lag``, run by run, so it is linear and
@@ -15,7 +15,7 @@ vectorised). Heat flows come from ``engine.simulate_rows``:
   cooler) with a minimum set-point;
 * main bearings 1-7 and crankcase splash oil in compartments 1-6: lube-oil temperature
   plus a rise growing with speed and load (bearings 4 and 5, mid-engine, carry most load,
-  cf. seed 000 sec. 5.2.4);
+  cf. egt-hybrid sec. 5.2.4);
 * fuel temperature: day tank near engine-room temperature, warmed by return fuel.
 
 Each voyage starts from a pre-heated engine (HT water 60 degC, oil 45 degC), so the first

@@ -3,7 +3,7 @@
 One time loop advances every trajectory of the batch at once (numpy vectors of length
 batch for the rotor and engines x batch for the engines). Each step (sub-stepped):
 
-1. each FADEC computes its fuel command from the seed's eq. 2 — PID on the rotor-speed
+1. each FADEC computes its fuel command from the turboshaft-moe paper's eq. 2 — PID on the rotor-speed
    error plus a lead-lag on the collective — with gains scheduled on delta sqrt(theta),
    a slow torque-matching trim, then applies rate and min/max limits with
    back-calculation anti-windup;

@@ -1,6 +1,6 @@
 """The gas generator and power turbine: fuel flow WF -> NG -> torque TRQ, with heat soak.
 
-Per engine (the seed's eq. 1 with scheduled time constants, plus what it leaves out):
+Per engine (the turboshaft-moe paper's eq. 1 with scheduled time constants, plus what it leaves out):
 
     m'   = (wfc - m) / tau_th(delta)                 slow thermal (heat-soak) state
     wfe  = wfc - kappa (wfc - m)                      fuel that heats the gas

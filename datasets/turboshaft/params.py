@@ -82,7 +82,7 @@ def draw_engines(rng: np.random.Generator, n: int = 2) -> EngineParams:
 
 @dataclass(frozen=True)
 class FadecParams:
-    """Fuel control law, the seed's eq. 2, identical software on both engines.
+    """Fuel control law, the turboshaft-moe paper's eq. 2, identical software on both engines.
 
     w = s (kc-lead-lag(COL) + kp e + ki int(e) + kd de/dt), e = NR_ref - NR in %,
     s = delta sqrt(theta) schedules every gain on ambient conditions (corrected fuel

@@ -1,9 +1,9 @@
-"""``moe``: seed 003's physics-structured mixture of experts, trained on derivatives, simulated open loop.
+"""``moe``: the turboshaft-moe paper's physics-structured mixture of experts, trained on derivatives, simulated open loop.
 
 The state z is the target(s), the regressors are ``[z; u; 1]`` with u the run-time
 inputs, and the schedulers v are a subset of the inputs (optionally plus the state:
 quasi-LPV). Each expert is an LPV model dz/dt = G_i(v) [z; u; 1]; a softmax gate
-alpha(v) mixes them (``model.py``). Training minimises seed 003's collaborative +
+alpha(v) mixes them (``model.py``). Training minimises the turboshaft-moe paper's collaborative +
 competitive loss on dz/dt estimated by total-variation regularised differentiation
 (``numerics/derivatives.py``), with Adam, on signals standardised with training statistics.
 Prediction integrates all segments at once (padded, fixed step, RK4 or Euler at the
@@ -15,7 +15,7 @@ A derivative fit weights the fast dynamics and can leave the slow pole, and with
 static gain, undetermined: when a controller integrates an error (the turboshaft FADEC's
 PI on NR), dWF/dt is explained by the error alone and the fitted own-state coefficient
 lands near 0 or on the wrong side, so the open-loop simulation drifts. Options that
-address it, off by default (seed 003's training): ``max_time_constant`` keeps every
+address it, off by default (the paper's training): ``max_time_constant`` keeps every
 own-state coefficient <= -1/max_time_constant (frozen-stability margin); ``sim_weight``
 adds the simulation error of short windows to the loss; ``correct`` models standard-day
 corrected columns (WF / (delta sqrt(theta))).
@@ -27,7 +27,7 @@ a number gives seconds (``options.py``).
 
 Modules, one job each: ``options`` (defaults, checks, hyperparameters), ``preprocess``
 (training segments to schedulers, regressors and derivative targets), ``warmstart``
-(least-squares start), ``training`` (Adam on the seed's loss, simulation-error windows),
+(least-squares start), ``training`` (Adam on the paper's loss, simulation-error windows),
 ``grid`` (a grid's training runs side by side in one batched loop), ``simulation`` (batched
 open-loop simulation), ``explain`` (local systems, frozen stability, gates, describe),
 ``model`` (the torch module), ``fitted`` (the trained record), ``method`` (the Method class).

@@ -89,7 +89,7 @@ def local_coefficients(fitted: MoEFitted, points: np.ndarray) -> dict[str, np.nd
 
 
 def frozen_stability(fitted: MoEFitted) -> dict[str, Any]:
-    """Seed 003's frozen-stability verdict over the training scheduler points.
+    """The turboshaft-moe paper's frozen-stability verdict over the training scheduler points.
 
     ``state_coefficients_negative``: every expert's own-state coefficient is < 0 at every
     probe point (what the sign constraint promises, checked in floating point: a
@@ -114,7 +114,7 @@ def gate_weights(fitted: MoEFitted, data: Samples) -> list[np.ndarray]:
     """Gate weights over time, one (N, n_experts) array per segment (rows as in ``predict``).
 
     With the state among the schedulers the gate is evaluated along the simulated
-    trajectory (as in seed 003's figures), never the measured one.
+    trajectory (as in the turboshaft-moe paper's figures), never the measured one.
     """
     _, gates, _ = simulate(fitted, data, record_gate=True)
     return [g[s.rows] for g, s in zip(gates, data.segments)]

@@ -1,9 +1,9 @@
-"""The torch module of the physics-structured mixture of experts (seed 003, eqs. 3-6).
+"""The torch module of the physics-structured mixture of experts (turboshaft-moe, eqs. 3-6).
 
 Each expert i is an LPV model: an MLP g_i of the schedulers v gives the coefficient
 matrix G_i(v) (k outputs x q regressors) of dz/dt = G_i(v) [z; u; 1]. Chosen
 coefficients carry a sign through h(x) = +-log(1 + e^{kx}) / k, so e.g. every expert's
-own-state coefficient is negative for every v (frozen stability, seed 003 appendix).
+own-state coefficient is negative for every v (frozen stability, turboshaft-moe appendix).
 A softmax MLP gate alpha(v) mixes the experts. All experts are evaluated at once with
 batched weights (no Python loop over experts).
 """
@@ -24,7 +24,7 @@ def _uniform(shape: tuple[int, ...], fan_in: int, gen: torch.Generator, dtype: t
 
 
 def signed_softplus(x: torch.Tensor, sign: torch.Tensor, k: float, margin: torch.Tensor | float = 0.0) -> torch.Tensor:
-    """Seed 003 eq. 6 where ``sign`` is +-1, identity where it is 0.
+    """The turboshaft-moe paper's eq. 6 where ``sign`` is +-1, identity where it is 0.
 
     ``margin`` (>= 0, broadcast like ``sign``) shifts a constrained coefficient away from 0:
     sign (margin + log(1 + e^{kx}) / k), so its magnitude never falls below the margin
@@ -107,9 +107,9 @@ class MixtureOfExperts(nn.Module):
 def moe_loss(
     f: torch.Tensor, alpha: torch.Tensor, target: torch.Tensor, beta1: float, beta2: float, competitive: str = "alpha2"
 ) -> torch.Tensor:
-    """Seed 003 eq. 4: beta1 |y - sum_i a_i f_i|^2 + beta2 sum_i w_i |y - f_i|^2, mean over rows.
+    """The turboshaft-moe paper's eq. 4: beta1 |y - sum_i a_i f_i|^2 + beta2 sum_i w_i |y - f_i|^2, mean over rows.
 
-    ``w_i = alpha_i^2`` as printed in the seed (eq. 4c) or ``alpha_i`` (Jacobs et al.'s
+    ``w_i = alpha_i^2`` as printed in the paper (eq. 4c) or ``alpha_i`` (Jacobs et al.'s
     competitive weighting) with ``competitive="alpha"``.
     """
     mix = torch.einsum("nm,nmk->nk", alpha, f)

@@ -151,7 +151,7 @@ OPTIONS = Declaration(
              "-1/max_time_constant; None = only < 0", nullable=True, unit="s",
              message="{name}={value} must be a positive number of seconds or None"),
     number("sim_weight", 0.0, "weight of the open-loop simulation error over shooting_window windows added to "
-           "the derivative loss; 0 = the seed's derivative-only training", low=0,
+           "the derivative loss; 0 = the turboshaft-moe paper's derivative-only training", low=0,
            message="{name}={value} must be a finite number >= 0"),
     positive("shooting_window", None, "length of the simulation-error windows; None = "
              f"{SHOOTING_WINDOW_SAMPLES} sample steps", nullable=True, unit="s",

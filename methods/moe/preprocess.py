@@ -177,7 +177,7 @@ def input_derivative(x: np.ndarray, t: np.ndarray, order: int, window_s: float |
 
     A cubic Savitzky-Golay fit over about ``window_s`` seconds, or ``DERIVATIVE_WINDOW_SAMPLES``
     samples when None (scipy; an odd window; the edges use the fit of the first / last window). Needs only the inputs, so it is the same at fit and run time;
-    like the seed's TV-differentiated input derivatives it is not causal. Segments too short
+    like the turboshaft-moe paper's TV-differentiated input derivatives it is not causal. Segments too short
     for a cubic window fall back to repeated central differences.
     """
     n = len(x)

@@ -1,4 +1,4 @@
-"""Training: seed 003's collaborative + competitive loss on the TV derivatives, with Adam, from the
+"""Training: the turboshaft-moe paper's collaborative + competitive loss on the TV derivatives, with Adam, from the
 least-squares warm start; optionally plus the open-loop simulation error of short training windows."""
 
 from __future__ import annotations
@@ -168,7 +168,7 @@ def step_loss(
     competitive: str, windows: tuple[torch.Tensor, ...] | None, sim_weight: torch.Tensor,
     o: dict[str, Any], shoot: _Shooting | None, d_scale: torch.Tensor | None, fused: bool = True,
 ) -> torch.Tensor:
-    """One minibatch's loss: seed 003's loss of rows (v, x, d) with ``beta`` = (beta1, beta2), plus
+    """One minibatch's loss: the turboshaft-moe paper's loss of rows (v, x, d) with ``beta`` = (beta1, beta2), plus
     ``sim_weight`` times the simulation error of ``windows`` = (U, H, Z) when given."""
     f, alpha = net(v, x)
     loss = moe_loss(f, alpha, d, beta[0], beta[1], competitive)
@@ -194,7 +194,7 @@ def _train(
     gen: torch.Generator, device: torch.device, dtype: torch.dtype, shoot: _Shooting | None = None,
     fused: bool = True, compile: bool = False, checkpoints: Mapping[int, Callable[[list[float]], None]] | None = None,
 ) -> list[float]:
-    """Adam on seed 003's loss with shuffled minibatches; returns the mean loss per epoch.
+    """Adam on the turboshaft-moe paper's loss with shuffled minibatches; returns the mean loss per epoch.
 
     With ``shoot`` (option sim_weight > 0) every step adds sim_weight times the simulation error of
     a share of the epoch's windows (each window once per epoch): the derivative loss weights

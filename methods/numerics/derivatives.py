@@ -1,6 +1,6 @@
 """Regularised differentiation of sampled signals: the one differentiator of MoE and SINDy targets.
 
-Models fitted on time derivatives (seed 003: MoE and SINDy) need dz/dt from noisy,
+Models fitted on time derivatives (turboshaft-moe: MoE and SINDy) need dz/dt from noisy,
 sampled trajectories; a plain finite difference amplifies the noise by 1/dt. This
 module wraps the maintained ``derivative`` package's estimators: ``trend_filtered``
 (``derivative.TrendFiltered``; ``order=0`` is Chartrand's total-variation derivative,

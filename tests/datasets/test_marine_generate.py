@@ -97,7 +97,7 @@ def test_values_are_physically_plausible(small):
 
 
 def test_pm_tracks_the_synthetic_data(small):
-    """The PM calibrated on this engine's FAT follows the trend but is biased (seed 000 sec. 5)."""
+    """The PM calibrated on this engine's FAT follows the trend but is biased (egt-hybrid sec. 5)."""
     ds, _ = small
     params, _ = calibrate_to_fat(simulator_fat(0))
     pred = simulate_frame(params, ds.frame, ds.dt)

@@ -1,4 +1,4 @@
-"""The marine-diesel physical model (seed 000 sec. 4.2) and its FAT calibration."""
+"""The marine-diesel physical model (egt-hybrid sec. 4.2) and its FAT calibration."""
 
 from __future__ import annotations
 

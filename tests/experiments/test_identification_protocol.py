@@ -1,4 +1,4 @@
-"""The identification protocol (DESIGN sec. 9): records split, init window, selection inside records, refit."""
+"""The identification protocol (docs/protocol.md, "Identification runs in detail"): records split, init window, selection inside records, refit."""
 
 from __future__ import annotations
 

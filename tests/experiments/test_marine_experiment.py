@@ -56,7 +56,7 @@ def test_builtin_specs_load_with_the_seed_protocol():
         assert spec.selection.kind == "bootstrap" and spec.split == {"kind": "published"}
         assert spec.roles == {}
     assert full.dataset_variant == "full" and full.repetitions == 30
-    assert full.windows == (0.0, 9.0, 18.0, 30.0)   # the seed's 0/10/20/30 s at dt = 3 s
+    assert full.windows == (0.0, 9.0, 18.0, 30.0)   # the egt-hybrid paper's 0/10/20/30 s at dt = 3 s
     assert full.method_options["krls"] == {"gamma_grid": [-4, 4, 41], "lambda_grid": [-4, 4, 41]}
     assert full.method_options["mtl-krls"]["theta_grid"] == [-4, 4, 41]
     assert quick.dataset_variant == "small" and quick.repetitions < full.repetitions

@@ -42,7 +42,7 @@ def trq():
 
 def test_seed003_cells_are_repetition_means_of_the_job_rows(trq):
     table = seed003_table(trq, literature=False)
-    assert list(table["method"]) == ["nfir", "moe[ideal]", "moe-nfir", "sindy-nfir"]  # the seed's row order
+    assert list(table["method"]) == ["nfir", "moe[ideal]", "moe-nfir", "sindy-nfir"]  # the paper's row order
     ok = trq[trq["status"] == "ok"]
     for row in table.itertuples():
         for split, prefix in (("validation", "val"), ("test", "test")):
@@ -61,7 +61,7 @@ def test_seed003_literature_rows_come_from_the_published_tables(trq):
     lit = table[table["source"] == LITERATURE].set_index(["target", "method"])
     assert lit.loc[("TRQ", "sindy-nfir"), "test_mean"] == pytest.approx(2.34)
     assert lit.loc[("TRQ", "moe[ideal]"), "val_iqr"] == pytest.approx(0.80)
-    assert lit.loc[("WF", "sindy"), "test_mean"] == pytest.approx(1e8)  # the seed's (1 +- 8) x 10^8
+    assert lit.loc[("WF", "sindy"), "test_mean"] == pytest.approx(1e8)  # the paper's (1 +- 8) x 10^8
     assert lit.loc[("WF", "sindy"), "test_sd"] == pytest.approx(8e8)
     assert len(lit) == 9 and LITERATURE == "literature (confidential data; not comparable)"
     # literature rows follow each target's own rows
@@ -104,7 +104,7 @@ def test_seed003_needs_validation_or_test_rows():
         seed003_table(rows)
 
 
-# -- seed 000 -------------------------------------------------------------------------------------
+# -- egt-hybrid (formerly seed 000) ---------------------------------------------------------------
 def marine_rows(reps: int = 5) -> pd.DataFrame:
     rng = np.random.default_rng(1)
     rows = []
@@ -134,7 +134,7 @@ def test_seed000_literature_rows_and_markdown():
     table = seed000_table(marine_rows())
     lit = table[table["source"] == LITERATURE]
     pm = lit[(lit["method"] == "pm") & (lit["window"] == 0)].iloc[0]
-    assert (pm["mae"], pm["mae_ci"], pm["mape"], pm["ppmcc"]) == (33.0, 1.7, 11.7, 0.86)  # seed 000 Table 8
+    assert (pm["mae"], pm["mae_ci"], pm["mape"], pm["ppmcc"]) == (33.0, 1.7, 11.7, 0.86)  # egt-hybrid Table 8
     assert len(lit) == 9 and set(lit["target"]) == {"t_exhaust_turbine_outlet"}
     assert len(read_literature("literature-seed000.csv")) == 18
     md = seed000_markdown(table)
