@@ -25,7 +25,10 @@ and must return ``SegmentPredictions`` (one array of len(s.rows) rows per segmen
 the window: the predictions must not change (the window itself may change them). Bad
 input there is a NaN run-time input, a NaN in the initialisation window and a missing
 input column. Slow methods can fix hyperparameters with ``params``, e.g.
-``check_method(MyODE, params={"epochs": 3})``.
+``check_method(MyODE, params={"epochs": 3})``; ``mode="simulation"`` checks one of the
+method's modes only. A method that needs a column the tiny data lacks asks for it with its
+role: ``roles={"w": "internal"}`` adds a signal ``w`` measured in training only (the
+training samples' ``Z``), ``roles={"w": "input"}`` a run-time input.
 
 The individual checks are ``testing_checks.py`` and the tiny data ``testing_data.py``
 (``tiny_samples``, ``TinyLinearPM`` and ``TINY_INIT`` stay importable from here).
@@ -36,6 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
+from enginebench.errors import MethodError
 from enginebench.methods.base import Method
 from enginebench.testing_checks import (CheckFailed, CheckRun, check_attributes, check_bad_input, check_determinism,
                                         check_leakage, check_options, check_pickle, check_shapes)
@@ -70,12 +74,15 @@ class ConformanceReport:
 
 
 def check_method(cls: type[Method], options: Mapping[str, Any] | None = None, *, seed: int = 0,
-                 params: Mapping[str, Any] | None = None) -> ConformanceReport:
+                 params: Mapping[str, Any] | None = None, mode: str | None = None,
+                 roles: Mapping[str, str] | None = None) -> ConformanceReport:
     """Run every conformance check on ``cls`` (built with ``options``); raise ConformanceError listing failures.
 
     Each failure message names the check, the method and, where it matters, the mode.
     ``params`` fixes hyperparameters (replacing their search grid) to keep a slow method's
-    checks quick, e.g. ``{"epochs": 3}``. Returns a report of what passed, per mode.
+    checks quick, e.g. ``{"epochs": 3}``. ``mode`` checks that mode only (one the class
+    declares; default: every mode it declares). ``roles`` adds columns to the tiny data,
+    name -> ``"internal"`` or ``"input"``. Returns a report of what passed, per mode.
     """
     options = dict(options or {})
     label = getattr(cls, "name", None) or getattr(cls, "__name__", repr(cls))
@@ -93,13 +100,18 @@ def check_method(cls: type[Method], options: Mapping[str, Any] | None = None, *,
     except CheckFailed as exc:
         fail("attributes", str(exc))
         raise ConformanceError(label, failures, len(CHECKS)) from None
+    if mode is not None:
+        if mode not in modes:
+            raise MethodError(f"check_method: method {label!r} declares no checked mode {mode!r}; "
+                              f"its modes: {', '.join(modes)}")
+        report.modes = modes = (mode,)
     try:
         method = check_options(cls, options)
         report.passed.append("options")
     except CheckFailed as exc:
         fail("options", str(exc))
         raise ConformanceError(label, failures, len(CHECKS)) from None
-    train_ds, test_ds = tiny_datasets(seed)
+    train_ds, test_ds = tiny_datasets(seed, roles)
     for mode in modes:
         run = CheckRun(method, train_ds, test_ds, mode, seed, dict(params or {}))
         train, test = run.train, run.test

@@ -144,7 +144,8 @@ def upstream_signals(ups: Sequence[UpstreamFitted], data: Samples, owner: str
                      ) -> tuple[list[list[np.ndarray]], np.ndarray]:
     """Each upstream's prediction of its intermediate over every raw row of every segment, and diverged flags.
 
-    ``owner``: the cascade's name, for the error when a segment lacks its initial target y0.
+    ``owner``: the cascade's name, for the errors when a segment lacks its initial target y0 or the samples
+    lack an input an upstream was trained on.
     """
     full = replace(data, segments=tuple(replace(s, rows=np.arange(len(s.U)), y=None, Z=None) for s in data.segments))
     y0 = [s.y0 if s.y0 is not None else (s.y[0] if s.y is not None else None) for s in data.segments]
@@ -152,6 +153,11 @@ def upstream_signals(ups: Sequence[UpstreamFitted], data: Samples, owner: str
         raise MethodError(f"method {owner!r}: every segment needs its measured initial target y0 (simulation mode)")
     signals, diverged = [], np.zeros(len(data.segments), dtype=bool)
     for up in ups:
+        absent = [c for c in up.inputs if c not in data.input_names]
+        if absent:
+            raise MethodError(f"method {owner!r}: the model of {up.name!r} was trained on the run-time input "
+                              f"{absent[0]!r}, which these samples lack; predict with the inputs it was trained on "
+                              f"({', '.join(up.inputs)})")
         z0 = up.initialiser(initial_features(full, up.inputs, y0))
         part = target_samples(full, up.name, up.inputs, None, list(z0))
         preds = up.method.predict(up.fitted, part)
