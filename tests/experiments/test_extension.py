@@ -165,3 +165,14 @@ def test_a_method_no_better_than_the_mean_on_the_folds_is_told_so(train):
                        np.random.default_rng(0))
     assert fitted["best_score"] < 0.98 * fitted["mean_score"]
     assert not any("training mean" in w for w in fitted.get("warnings", []))
+
+
+def test_an_input_windows_bounds_run_from_one_sample_to_the_longest_record(train):
+    from enginebench.methods.boost_fir import BoostFIR
+    from enginebench.methods.nfir import NFIR
+
+    longest = max(len(s.U) for s in train.segments) * train.dt
+    assert BoostFIR(horizons=[2.0, 4.0, 8.0]).search_bounds(train) == {"horizon": (train.dt, longest)}
+    assert BoostFIR(horizons=[0.0, 2.0, 4.0]).search_bounds(train)["horizon"] == (0.0, longest)  # 0: no past
+    nfir = NFIR(horizons=[2.0, 4.0, 8.0]).search_bounds(train)
+    assert nfir == {"gamma": (1e-8, 1e6), "lambda": (1e-14, 1e8), "horizon": (train.dt, longest)}
