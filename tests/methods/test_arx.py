@@ -13,7 +13,6 @@ from enginebench.errors import MethodError
 from enginebench.methods.arx import ARX, ARXFit, simulate
 from enginebench.methods.base import SegmentPredictions, grid_points
 from enginebench.methods.freerun import Envelope
-from enginebench.testing import check_method
 from helpers import A_TRUE, B1_TRUE, B2_TRUE, OFFSET, linear_raw, sim_samples
 
 PARAMS = {"na": 2, "nb": 2, "nk": 1}
@@ -182,10 +181,6 @@ def test_bad_prediction_input_is_one_line(fitted):
     U[7, 1] = np.nan
     with pytest.raises(MethodError, match=r"segment 's0' has nan/inf in input column 1 at row 7"):
         ARX().predict(fitted, replace(data, segments=(replace(seg, U=U),)))
-
-
-def test_conformance():
-    check_method(ARX)
 
 
 def test_selection_skips_orders_the_fitting_pieces_cannot_carry():

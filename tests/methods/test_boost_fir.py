@@ -9,7 +9,6 @@ import pytest
 from enginebench.errors import MethodError
 from enginebench.methods.boost_fir import BoostFIR
 from enginebench.methods.nfir_memory import lagged_inputs
-from enginebench.testing import check_method
 from helpers import linear_raw, sim_samples
 
 
@@ -62,7 +61,3 @@ def test_bad_hyperparameters_are_one_line():
         BoostFIR().fit(train, {}, np.random.default_rng(0))
     with pytest.raises(MethodError, match="learning_rate"):
         BoostFIR(learning_rate=0)
-
-
-def test_conformance():
-    check_method(BoostFIR, {"max_iter": 10})

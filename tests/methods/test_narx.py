@@ -16,7 +16,6 @@ from enginebench.errors import MethodError
 from enginebench.methods.base import SegmentPredictions, grid_points
 from enginebench.methods.freerun import Envelope
 from enginebench.methods.narx import NARX, NARXFit
-from enginebench.testing import check_method
 
 PARAMS = {"lags": 2, "nk": 0, "gamma": 0.3, "lambda": 1e-6}
 
@@ -210,10 +209,6 @@ def test_describe_names_the_model(fitted):
     d = NARX().describe(fitted)
     assert (d["na"], d["nb"], d["nk"], d["regressors"], d["solver"]) == (2, 2, 0, 4, "exact")
     assert d["gamma"] == pytest.approx(0.3 / 4) and d["lambda"] == pytest.approx(1e-6 * d["regression_rows"])
-
-
-def test_conformance():
-    check_method(NARX, {"gamma_grid": (-1, 0, 2), "lambda_grid": (-4, -2, 2)})
 
 
 def test_nystroem_with_every_row_as_a_centre_is_exact_krls():

@@ -14,7 +14,6 @@ import scipy.signal
 from enginebench.errors import MethodError
 from enginebench.methods import peers
 from enginebench.methods.peers import INSTALL, N4SID, SysIdentPyNARX, initial_state, simulate_state_space
-from enginebench.testing import check_method
 from helpers import linear_raw, sim_samples
 
 HAVE_SYSIDENTPY = importlib.util.find_spec("sysidentpy") is not None
@@ -90,11 +89,6 @@ def test_an_order_the_data_cannot_carry_is_skipped_by_the_grid_and_refused_by_fi
         m.fit(train, {"order": 200}, np.random.default_rng(0))
 
 
-@needs_nfoursid
-def test_n4sid_conformance():
-    check_method(N4SID, {"orders": (1, 2)})
-
-
 # -- SysIdentPy ----------------------------------------------------------------------------------
 @needs_sysidentpy
 def test_sysidentpy_narx_simulates_a_linear_system_from_its_init_window(data):
@@ -125,11 +119,6 @@ def test_only_the_init_window_is_read(data, cls, options, params):
     seg = test.segments[0]
     moved = m.predict(fit, replace(test, segments=(replace(seg, y_init=seg.y_init + 1.0), *test.segments[1:])))
     assert not np.allclose(moved[0], before[0])
-
-
-@needs_sysidentpy
-def test_sysidentpy_narx_conformance():
-    check_method(SysIdentPyNARX, SMALL_SYSIDENTPY)
 
 
 @needs_sysidentpy

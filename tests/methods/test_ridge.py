@@ -16,7 +16,6 @@ from enginebench.experiments.selection import select
 from enginebench.experiments.spec import Selection
 from enginebench.methods.registry import get
 from enginebench.methods.ridge import ALPHA_BOUND, Ridge
-from enginebench.testing import check_method
 
 RNG = np.random.default_rng(0)
 
@@ -46,13 +45,8 @@ def _predict(method: Ridge, train, test, alpha: float) -> np.ndarray:
     return np.concatenate(method.predict(method.fit(train, {"alpha": alpha}, RNG), test))
 
 
-def test_registered_and_conforms_in_static_and_window_modes():
-    assert get("ridge") is Ridge
-    report = check_method(Ridge, {"alpha_grid": (-3, 3, 7)})
-    assert report.modes == ("static", "window")
-    for mode in ("static", "window"):
-        for check in ("no-target-leakage", "determinism", "shapes", "pickle-round-trip", "bad-input"):
-            assert f"{check}[{mode}]" in report.passed
+def test_registered_in_static_and_window_modes():
+    assert get("ridge") is Ridge and Ridge.modes == {"static", "window"}  # conformance: test_conformance_registry.py
 
 
 @pytest.mark.parametrize("alpha", [1e-6, 1e-2, 0.3, 10.0, 1e3])

@@ -6,37 +6,12 @@ import numpy as np
 import pytest
 
 from enginebench.datasets.samples import Samples
-from enginebench.errors import MethodError
+from enginebench.errors import DataError, MethodError
 from enginebench.methods import registry
 from enginebench.methods.base import Method, SegmentPredictions
 from enginebench.testing import CHECKS, TINY_INIT, ConformanceError, check_method, tiny_samples
 
-SMALL_GRID = {"gamma_grid": (-2, 0, 3), "lambda_grid": (-3, -1, 3)}
-
-
-@pytest.mark.parametrize("name, options, params", [
-    ("naive-mean", {}, None),
-    ("naive-last", {}, None),
-    ("krls", SMALL_GRID, None),
-    ("pm", {}, None),  # on the check's tiny linear physical model
-    ("nfir", {}, None),  # static and simulation, horizons derived from the tiny data
-    ("sindy", {"derivative": "kalman", "degrees": (1, 2), "n_alphas": 1}, None),
-    ("moe", {"device": "cpu", "batch_size": 64}, {"epochs": 3, "n_experts": 2}),
-])
-def test_builtin_methods_conform(name, options, params):
-    cls = registry.get(name)
-    report = check_method(cls, options, params=params)
-    assert report.method == name and not report.skipped
-    assert set(report.modes) == set(cls.modes)
-    for mode in sorted(cls.modes):
-        for check in CHECKS[2:]:
-            assert f"{check}[{mode}]" in report.passed
-
-
-def test_mtl_krls_conforms():
-    report = check_method(registry.get("mtl-krls"), {**SMALL_GRID, "theta_grid": (-1, 1, 3)})
-    assert "determinism[static]" in report.passed and "no-target-leakage[window]" in report.passed
-    assert "bad-input[static]" in report.passed and not report.skipped
+# every registered method, in each of its modes: test_conformance_registry.py
 
 
 def test_simulation_only_methods_get_the_whole_suite():
@@ -373,6 +348,53 @@ def test_tiny_samples_shapes():
     assert train.feature_names == ("u1[t]", "u1[t-1]", "u1[t-2]", "u2[t]", "u2[t-1]", "u2[t-2]", "y[t-1]", "y[t-2]")
     assert len(test) == 2 * (25 - 2)
     assert train.physical_model is not None
+
+
+def test_extra_columns_join_the_tiny_data_in_their_role_and_change_nothing_else():
+    plain_train, plain_test = tiny_samples("simulation")
+    train, test = tiny_samples("simulation", roles={"w": "internal"})
+    assert train.input_names == ("u1", "u2") and train.internal_names == ("w",)
+    assert train.segments[0].Z.shape == (30, 1) and np.isfinite(train.segments[0].Z).all()
+    assert test.without_targets().segments[0].Z is None  # measured in training only
+    for a, b in zip(plain_train.segments + plain_test.segments, train.segments + test.segments):
+        np.testing.assert_array_equal(a.U, b.U)
+        np.testing.assert_array_equal(a.y, b.y)
+    static, _ = tiny_samples("static", roles={"w": "input", "v": "internal"})
+    assert static.input_names == ("u1", "u2", "w") and static.internal_names == ("v",)
+    assert "w" in static.feature_names
+    w, v = static.segments[0].X[:, static.feature_names.index("w")], static.segments[0].Z[:, 0]
+    assert not np.allclose(w, v)  # each extra column is a signal of its own
+
+
+@pytest.mark.parametrize("roles, match", [({"y": "internal"}, "already a column"), ({"w": "output"}, "role 'output'")])
+def test_a_bad_extra_column_is_refused(roles, match):
+    with pytest.raises(DataError, match=match):
+        tiny_samples("static", roles=roles)
+
+
+def test_mode_checks_one_declared_mode():
+    report = check_method(registry.get("naive-mean"), mode="window")
+    assert report.modes == ("window",)
+    assert report.passed == ["attributes", "options"] + [f"{c}[window]" for c in (
+        "no-target-leakage", "determinism", "shapes", "pickle-round-trip", "bad-input")]
+    with pytest.raises(MethodError, match="declares no checked mode 'simulation'; its modes: window"):
+        check_method(registry.get("naive-last"), mode="simulation")
+
+
+def test_a_method_that_reads_an_internal_column_at_prediction_fails():
+    class UsesZ(Method):
+        name = "test-uses-z"
+        family = "baseline"
+        modes = frozenset({"static"})
+
+        def fit(self, train: Samples, params, rng: np.random.Generator):
+            return {"d": train.X.shape[1]}
+
+        def predict(self, fitted, data: Samples):
+            return [s.Z[:, :1] for s in data.segments]  # Z is measured in training only
+
+    with pytest.raises(ConformanceError, match=r"predict raised TypeError"):
+        check_method(UsesZ, roles={"w": "internal"})
 
 
 def test_the_readme_example_method_conforms(tmp_path, monkeypatch):
