@@ -378,7 +378,7 @@ def select(method: Method, train: Samples, selection: Selection, rng: np.random.
     bounds = method.search_bounds(train)
     extension = None
     searched = len(grid)
-    if selection.search == "grid" and bounds:
+    if selection.search == "grid" and selection.extend and bounds:
         extension = extend(space, grid, scores, evaluate, bounds, rules, WARNED_EDGES)
         grid, scores, space = extension.points, extension.scores, extension.extended_space
     total = np.zeros(len(grid))

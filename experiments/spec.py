@@ -26,6 +26,7 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
     refit = true                        # refit the chosen point on training + validation rows
     search = "grid"                     # grid | random | bayes (optuna: pip install enginebench[search])
     trials = 50                         # points tried by random and bayes
+    extend = true                       # grid search: go past a grid's edge up to the declared bounds
 
     [methods.krls]                      # constructor options of a method
     gamma_grid = [-4, 4, 41]
@@ -145,6 +146,8 @@ SELECTION = Declaration(
              type_label="choice: " + " | ".join(SEARCHES)),
     whole("trials", 50, "points tried by search random or bayes", low=1,
           message="selection trials must be a whole number >= 1, got {value}"),
+    flag("extend", True, "grid search: a value selected at a grid's edge is searched further, up to the bounds "
+         "the method declares (false: the grids as declared, e.g. a paper's protocol)"),
 )
 SELECTION_KEYS = tuple(SELECTION.names())
 
@@ -189,7 +192,7 @@ SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
 
 DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False, "joint_targets": False}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
-SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50}
+SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50, "extend": True}
 """The same for [selection] keys: earlier runs' configs (and hashes) stay as they were."""
 
 
@@ -205,6 +208,8 @@ class Selection:
     """grid | random | bayes (``experiments/search.py``)."""
     trials: int = 50
     """Points tried by random and bayes search."""
+    extend: bool = True
+    """Grid search goes past a grid's edge up to the method's declared bounds (``experiments/extension.py``)."""
 
 
 @dataclass(frozen=True)
