@@ -176,3 +176,17 @@ def test_an_input_windows_bounds_run_from_one_sample_to_the_longest_record(train
     assert BoostFIR(horizons=[0.0, 2.0, 4.0]).search_bounds(train)["horizon"] == (0.0, longest)  # 0: no past
     nfir = NFIR(horizons=[2.0, 4.0, 8.0]).search_bounds(train)
     assert nfir == {"gamma": (1e-8, 1e6), "lambda": (1e-14, 1e8), "horizon": (train.dt, longest)}
+
+
+def test_extend_false_keeps_the_grids_as_declared(train):
+    params, record = select(Bowl(), train, Selection(kind="kfold", folds=3, extend=False), np.random.default_rng(0))
+    assert params["a"] == pytest.approx(1e-2) and "extended" not in record and record["grid_size"] == 25
+    assert grid_warnings(record)[0].startswith("bowl: a = 0.01 selected at the lower edge of its grid")
+
+
+def test_the_paper_protocol_experiments_keep_their_grids():
+    from enginebench.experiments.spec import load_spec
+
+    for name in ("marine-diesel-egt", "turboshaft-wf", "turboshaft-trq", "turboshaft-trq-ideal"):
+        assert load_spec(name).selection.extend is False, name
+    assert load_spec("marine-diesel-egt-quick").selection.extend is True
