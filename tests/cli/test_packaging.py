@@ -43,3 +43,15 @@ def test_console_script_and_builtin_methods_are_registered():
     assert scripts.get("enginebench") == "enginebench.cli.main:main"
     methods = {ep.name for ep in entry_points(group="enginebench.methods")}
     assert {"naive-mean", "naive-last", "krls"} <= methods
+
+
+def test_the_all_extra_installs_every_other_extra():
+    """``pip install enginebench[all]`` brings every optional extra (the test extra is for the suite, not users)."""
+    import re
+    import tomllib
+
+    root = Path(__file__).resolve().parents[2]
+    extras = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    (requirement,) = extras["all"]
+    named = set(re.fullmatch(r"enginebench\[([a-z,]+)\]", requirement).group(1).split(","))
+    assert named == set(extras) - {"all", "test"}
