@@ -23,7 +23,7 @@ import pandas as pd
 
 from enginebench.errors import EngineBenchError
 from enginebench.experiments.report import (REPORT_FILE, ReportResult, ReportSettings, _synthetic, is_learning_curve,
-                                            write_report)
+                                            run_verdicts, verdict_html, write_report)
 from enginebench.experiments.report_figures import _time_axis
 from enginebench.experiments.report_refit import Predictions, refit_predictions
 from enginebench.results import tables
@@ -240,17 +240,18 @@ figure { margin: 0.8em 0 1.6em 0; min-width: 0; }
 .grid { display: grid; grid-template-columns: repeat(auto-fill, minmax(560px, 1fr)); gap: 0 1.5em; } figcaption { color: #444; font-size: 0.9em; }
 pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; font-size: 0.85em; }
 .synthetic { color: #a00; font-weight: bold; } .note { color: #555; } .failed { color: #a00; }
+ul.verdict li { font-size: 1.05em; margin: 0.2em 0; }
 """
 
 
-def _html(run: Run, page: _Page, failures: list[str], notes: list[str]) -> str:
+def _html(run: Run, page: _Page, failures: list[str], notes: list[str], verdict: str = "") -> str:
     from enginebench.results.interactive import SORT_SCRIPT, plotly_script
 
     cfg, info = run.config(), run.info()
     esc = html.escape
     out = [f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
            f"<title>enginebench interactive report: {esc(run.id)}</title>\n<style>{_STYLE}</style>\n"
-           f"{plotly_script()}</head>\n<body>\n<h1>Run {esc(run.id)}</h1>\n"
+           f"{plotly_script()}</head>\n<body>\n<h1>Run {esc(run.id)}</h1>\n{verdict}"
            f"<p>experiment <b>{esc(str(cfg.get('name', '?')))}</b> on dataset <b>{esc(str(cfg.get('dataset', '?')))}</b>;"
            f" targets {esc(', '.join(map(str, cfg.get('targets', []))))}; mode {esc(str(cfg.get('mode', '?')))}; "
            f"{esc(str(cfg.get('repetitions', '?')))} repetitions, seed {esc(str(cfg.get('seed', '?')))}; status "
@@ -337,7 +338,9 @@ def write_interactive_report(
         result.notes.append(missing)
     result.figures = list(page.titles)
     result.path.parent.mkdir(parents=True, exist_ok=True)
-    result.path.write_text(_html(run, page, run_note_lines(run), result.notes), encoding="utf-8")
+    metric = tables.default_paired_metric(str(cfg.get("mode", "")))
+    verdict = verdict_html(run_verdicts(run, raw, summary, tables.paired_tests(raw, metric), metric))
+    result.path.write_text(_html(run, page, run_note_lines(run), result.notes, verdict), encoding="utf-8")
     return result
 
 

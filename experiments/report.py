@@ -40,6 +40,7 @@ from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run
 from enginebench.results.units import run_units
+from enginebench.results.verdict import Verdict, verdicts
 
 __all__ = [
     "Figure",
@@ -50,6 +51,8 @@ __all__ = [
     "ReportResult",
     "ReportSettings",
     "TABLE_FILE",
+    "run_verdicts",
+    "verdict_html",
     "is_learning_curve",
     "refit_predictions",
     "time_trend_plot",
@@ -113,7 +116,27 @@ figure { display: inline-block; margin: 0.5em; vertical-align: top; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
 .synthetic { color: #a00; font-weight: bold; }
 .note { color: #555; }
+ul.verdict li { font-size: 1.05em; margin: 0.2em 0; }
 """
+
+
+def run_verdicts(run: Run, raw: pd.DataFrame, summary: pd.DataFrame, paired: pd.DataFrame | None,
+                 metric: str | None = None) -> list[Verdict]:
+    """The verdict per test block of ``run`` (``results.verdict``), on ``metric`` (default: the paired tests' metric)."""
+    metric = metric or tables.default_paired_metric(str(run.config().get("mode", "")))
+    return verdicts(raw, summary, paired, metric, run.job_metas().values())
+
+
+def verdict_html(found: Sequence[Verdict]) -> str:
+    """The verdict section a report opens on: one list item per block (a note where there is none)."""
+    if not found:
+        return ("<section id=\"verdict\">\n<h2>Verdict</h2>\n<p class=\"note\">no verdict: no block scored on its "
+                "test part</p>\n</section>\n")
+    items = "".join(f"<li>{html.escape(v.text())}</li>\n" for v in found)
+    return (f"<section id=\"verdict\">\n<h2>Verdict</h2>\n<ul class=\"verdict\">\n{items}</ul>\n"
+            f"<p class=\"note\">per target: the lowest mean {html.escape(found[0].metric)} on the test part; its margin "
+            "over the best baseline (family baseline: training mean, linear, naive) with the paired t-test over "
+            "repetitions, Holm-adjusted over the tests listed under the table</p>\n</section>\n")
 
 
 def _frame_html(frame: pd.DataFrame) -> str:
@@ -135,13 +158,13 @@ def _synthetic(dataset: str) -> bool:
 
 def _page(run: Run, summary: pd.DataFrame, metrics_cols: Sequence[str], paired: pd.DataFrame | None,
           paired_metric: str, curve_text: str | None, figures: list[Figure], notes: list[str], out: Path,
-          interactive: str | None = None) -> str:
+          interactive: str | None = None, verdict: Sequence[Verdict] = ()) -> str:
     info, cfg = run.info(), run.config()
     env_text = (run.path / "environment.json").read_text() if (run.path / "environment.json").is_file() else "{}"
     cfg_text = (run.path / "config.toml").read_text()
     esc = html.escape
     parts = [f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>enginebench report: {esc(run.id)}</title>\n"
-             f"<style>{_STYLE}</style>\n</head>\n<body>\n<h1>Run {esc(run.id)}</h1>\n"]
+             f"<style>{_STYLE}</style>\n</head>\n<body>\n<h1>Run {esc(run.id)}</h1>\n", verdict_html(verdict)]
     parts.append(f"<p>experiment <b>{esc(str(cfg.get('name', '?')))}</b> on dataset <b>{esc(str(cfg.get('dataset', '?')))}</b>"
                  f" {esc(str(cfg.get('dataset_variant', '')))}; targets {esc(', '.join(map(str, cfg.get('targets', []))))}; "
                  f"mode {esc(str(cfg.get('mode', '?')))}; {esc(str(cfg.get('repetitions', '?')))} repetitions, seed "
@@ -220,6 +243,7 @@ def write_report(
     table_path = out / TABLE_FILE
     table_path.write_text(tables.to_csv(summary, units=run_units(run.info())), encoding="utf-8")
     paired = tables.paired_tests(raw, paired_metric) if paired_metric else None
+    found = run_verdicts(run, raw, summary, paired, paired_metric)
     result = ReportResult(index=out / REPORT_FILE, table=table_path)
     curve_text = None
     curve = is_learning_curve(run)
@@ -254,5 +278,5 @@ def write_report(
     if missing:  # pragma: no cover - the plot functions return what they saved
         raise EngineBenchError(f"report: figure(s) not written: {', '.join(map(str, missing))}")
     result.index.write_text(_page(run, summary, metrics, paired, paired_metric, curve_text, result.figures,
-                                  result.notes, out, interactive), encoding="utf-8")
+                                  result.notes, out, interactive, found), encoding="utf-8")
     return result
