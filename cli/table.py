@@ -78,10 +78,12 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         console = Console(width=width) if width else Console()
         console.print(tables.to_rich(summary, cols, title=run.id, units=units, width=console.width,
                                      bold=console.color_system is not None))  # a pipe or file gets no bold
+        tests = tables.paired_tests(raw, paired_metric) if paired_metric else None
         if paired_metric:
-            click.echo(paired_lines(tables.paired_tests(raw, paired_metric), paired_metric, console.width))
+            click.echo(paired_lines(tests, paired_metric, console.width))
         for line in notes:
             click.echo(line)  # not through rich: a reason is one line, never wrapped
+        _verdict(run, raw, summary, tests, paired_metric, console.width)
         return
     text = {
         "term": lambda: tables.to_term(summary, cols, title=run.id, units=units, width=width or 80) + (
@@ -98,6 +100,23 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     if notes and fmt not in ("term", "md"):  # csv, LaTeX and HTML stay parseable: the notes go to stderr
         for line in notes:
             click.echo(line, err=True)
+
+
+def _verdict(run, raw, summary, tests, metric: str | None, width: int) -> None:
+    """The report's verdict lines (``results.verdict``), one per test block, wrapped to ``width``."""
+    import textwrap
+
+    from enginebench.results import tables
+    from enginebench.results.verdict import verdicts
+
+    metric = metric or tables.default_paired_metric(str(run.config().get("mode", "")))
+    found = verdicts(raw, summary, tests, metric, run.job_metas().values())
+    if not found:
+        return
+    click.echo(f"\nVerdict (lowest mean {metric} on the test part; margin over the best baseline):")
+    for v in found:
+        click.echo(textwrap.fill(v.text(), width, initial_indent="  ", subsequent_indent="    ",
+                                 break_long_words=False, break_on_hyphens=False))
 
 
 def _is_all(text: str | None) -> bool:

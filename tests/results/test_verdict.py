@@ -145,3 +145,15 @@ def test_the_interactive_report_opens_on_the_verdict(run, tmp_path):
     result = write_interactive_report(run, Path(tmp_path) / "report.html", figures=False)
     page = result.path.read_text()
     assert html.escape(_expected_line(run)) in _top(page[page.index("<body>"):])
+
+
+def test_table_prints_the_same_verdict_at_its_end(run):
+    from click.testing import CliRunner
+
+    from enginebench.cli.main import cli
+
+    out = CliRunner().invoke(cli, ["table", str(run.path), "--width", "400"])
+    assert out.exit_code == 0, out.output
+    lines = out.output.rstrip().splitlines()
+    assert lines[-2:] == ["Verdict (lowest mean mae on the test part; margin over the best baseline):",
+                          "  " + _expected_line(run)]
