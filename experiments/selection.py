@@ -180,8 +180,11 @@ def edge_rules(method: Method) -> tuple[dict[str, str], dict[str, str]]:
     """(hyperparameter -> edge rule, hyperparameter -> the option that sets its grid) from the method's declared options."""
     declaration = method.option_declaration()
     rules = method.grid_edges()
-    options = {param: f.name for f in declaration.fields for param in f.searches}
-    return rules, options
+    setting: dict[str, list[str]] = {}
+    for f in declaration.fields:
+        for param in f.searches:
+            setting.setdefault(param, []).append(f.name)
+    return rules, {param: " and ".join(names) for param, names in setting.items()}  # lags: "na and nb"
 
 
 @dataclass(frozen=True)

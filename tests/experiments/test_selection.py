@@ -191,3 +191,11 @@ def test_keep_fitted_only_for_a_validation_selection_through_fit_grid(toy):
     krls = KRLS(gamma_grid=(-2, 0, 3), lambda_grid=(-3, -1, 3))  # overrides predict_grid: no models to keep
     _, shared = select(krls, train, Selection(kind="validation"), np.random.default_rng(0), val, keep_fitted=True)
     assert "fitted" not in shared
+
+
+def test_a_hyperparameter_two_options_set_names_both():
+    from enginebench.experiments.selection import edge_rules
+    from enginebench.methods.narx import NARX
+
+    _, options = edge_rules(NARX())
+    assert options["lags"] == "na and nb" and options["na"] == "na" and options["gamma"] == "gamma_grid"
