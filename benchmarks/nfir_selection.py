@@ -55,23 +55,11 @@ INIT = 50
 def reference_predict_grid(method: NFIR, train: Samples, data: Samples, grid: Sequence[Params],
                            rng: np.random.Generator) -> np.ndarray:
     """The path before: per lag set one scaling, per gamma one eigendecomposition, eval distances per gamma."""
-    parsed = [method._params(p, train.dt) for p in grid]
-    names, cols = method._columns(train)
-    rows = method._kernel_rows(train, rng)
     k_out = len(train.target_names)
-    out = np.empty((len(parsed), len(data), k_out))
-    by_lags: dict[tuple[int, ...], list[int]] = {}
-    for i, (lags, *_rest) in enumerate(parsed):
-        by_lags.setdefault(tuple(int(x) for x in lags), []).append(i)
-    eval_cols = [data.input_names.index(c) for c in names]
-    for lag_key, members in by_lags.items():
-        lags = np.array(lag_key, dtype=np.int64)
-        sub = method.lagged(train, lags, cols).take(rows)
-        d = len(sub.feature_names)
-        gammas = np.array([parsed[i][3] / d for i in members])
-        lambdas = np.array([parsed[i][4] for i in members])
+    out = np.empty((len(grid), len(data), k_out))
+    for members, sub, evaluated, gammas, lambdas in method.lag_groups(train, data, grid, rng):
         scaler, Xs, yc, y_mean, y_scale = KRLS._train_arrays(method, sub)
-        Xe = scaler.transform(method.lagged(data, lags, eval_cols).X)
+        Xe = scaler.transform(evaluated.X)
         D_train = sq_distances(Xs)
         for gamma in dict.fromkeys(gammas.tolist()):
             idx = np.flatnonzero(gammas == gamma)

@@ -43,7 +43,7 @@ The lag helpers and the memory estimate (``estimate_memory``, ``MemoryEstimate``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -177,20 +177,13 @@ class NFIR(InputHistory, KRLS):
         }
         return {**out, **self.history_description(getattr(fitted, "memory", None), fitted.dt)}
 
-    def predict_grid(
-        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
-    ) -> np.ndarray:
-        """Every grid point, (n_grid, n_rows, k): per lag set one scaling and one set of distances, per gamma one
-        ``ridge_solutions`` call for all its lambdas (``numerics/kernel_grid.py``; 2-3x faster than the
-        eigendecomposition per gamma it replaced, ``benchmarks/nfir_selection.py``).
-
-        The kernel rows are drawn once, so every grid point is fitted on the same rows.
-        """
+    def lag_groups(self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+                   ) -> Iterator[tuple[list[int], Samples, Samples, np.ndarray, np.ndarray]]:
+        """The grid points by lag set: (their indices, the lagged kernel rows of ``train``, ``data`` lagged alike,
+        their gammas relative to the feature count, their lambdas). The kernel rows are drawn once for all."""
         parsed = [self._params(p, train.dt) for p in grid]
         names, cols = self._columns(train)
         rows = self._kernel_rows(train, rng)
-        k_out = len(train.target_names)
-        out = np.empty((len(parsed), len(data), k_out))
         by_lags: dict[tuple[int, ...], list[int]] = {}
         for i, (lags, *_rest) in enumerate(parsed):
             by_lags.setdefault(tuple(int(x) for x in lags), []).append(i)
@@ -201,12 +194,25 @@ class NFIR(InputHistory, KRLS):
             d = len(sub.feature_names)
             gammas = np.array([parsed[i][3] / d for i in members])
             lambdas = np.array([parsed[i][4] for i in members])
+            yield members, sub, self.lagged(data, lags, eval_cols), gammas, lambdas
+
+    def predict_grid(
+        self, train: Samples, data: Samples, grid: Sequence[Params], rng: np.random.Generator
+    ) -> np.ndarray:
+        """Every grid point, (n_grid, n_rows, k): per lag set one scaling and one set of distances, per gamma one
+        ``ridge_solutions`` call for all its lambdas (``numerics/kernel_grid.py``; 2-3x faster than the
+        eigendecomposition per gamma it replaced, ``benchmarks/nfir_selection.py``).
+
+        The kernel rows are drawn once, so every grid point is fitted on the same rows.
+        """
+        out = np.empty((len(grid), len(data), len(train.target_names)))
+        for members, sub, evaluated, gammas, lambdas in self.lag_groups(train, data, grid, rng):
             if self.uses_falkon(len(sub)):
-                out[members] = KRLS.predict_grid(self, sub, self.lagged(data, lags, eval_cols),
+                out[members] = KRLS.predict_grid(self, sub, evaluated,
                                                  [{"gamma": g, "lambda": lam} for g, lam in zip(gammas, lambdas)], rng)
                 continue
             scaler, Xs, yc, y_mean, y_scale = self._train_arrays(sub)
-            Xe = scaler.transform(self.lagged(data, lags, eval_cols).X)
+            Xe = scaler.transform(evaluated.X)
             target = np.asarray(members)
             for idx, block in kernel_ridge_grid(Xs, yc, Xe, gammas, lambdas, PREDICT_CHUNK):
                 out[target[idx]] = block * y_scale + y_mean
