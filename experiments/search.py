@@ -57,7 +57,8 @@ class Range:
         return float((v - lo) / (hi - lo))
 
 
-def _plain(value: Any) -> Any:
+def plain(value: Any) -> Any:
+    """A numpy scalar as the Python number it holds; anything else as it is."""
     return value.item() if isinstance(value, np.generic) else value
 
 
@@ -69,7 +70,7 @@ def _evenly_spaced(x: np.ndarray) -> bool:
 def infer_range(name: str, values: Sequence[Any] | np.ndarray) -> Range:
     """The range a candidate array stands for (see the module docstring); ``name`` labels it."""
     arr = np.asarray(values)
-    distinct = tuple(dict.fromkeys(_plain(v) for v in arr.reshape(-1)))
+    distinct = tuple(dict.fromkeys(plain(v) for v in arr.reshape(-1)))
     numeric = arr.dtype.kind in "iuf" and arr.size > 0
     if not numeric or len(distinct) < 3 or not np.isfinite(arr.astype(float)).all():
         return Range(name, "choice", choices=distinct)

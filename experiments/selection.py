@@ -19,7 +19,7 @@ from enginebench.datasets.samples import Samples
 from enginebench.datasets.splits import blocked_folds
 from enginebench.errors import MethodError, SpecError
 from enginebench.experiments.extension import MAX_ROUNDS, Extension, extend
-from enginebench.experiments.search import range_positions, range_warnings, search_points
+from enginebench.experiments.search import plain, range_positions, range_warnings, search_points
 from enginebench.experiments.spec import Selection
 from enginebench.methods.base import Method, grid_points
 
@@ -289,7 +289,7 @@ class CandidateFailures:
 
     def _note(self, point: dict[str, Any], resample: int, error: Exception) -> None:
         reason = " ".join(str(error).split()) or type(error).__name__
-        self.notes.append({"point": {k: _plain(v) for k, v in point.items()}, "resample": resample + 1,
+        self.notes.append({"point": {k: plain(v) for k, v in point.items()}, "resample": resample + 1,
                            "reason": f"{type(error).__name__}: {reason}"})
 
     def warnings(self) -> list[str]:
@@ -304,10 +304,6 @@ class CandidateFailures:
 
     def first_reason(self) -> str:
         return f" (first failure: {self.notes[0]['reason']})" if self.notes else ""
-
-
-def _plain(value: Any) -> Any:
-    return value.item() if isinstance(value, np.generic) else value
 
 
 def _shown(value: Any) -> str:
