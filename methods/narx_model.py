@@ -189,21 +189,22 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     order = np.argsort(-lengths, kind="stable")  # longest first: live segments are a prefix
     sorted_len = lengths[order]
     na_max = max(m.na for m in models)
+    ka_max = max(m.ka for m in models)  # the kernel reads the newest ka lags: its history product spans those alone
     lu = max(m.nk + m.kb - 1 for m in models)
     c = inputs[0].shape[1]
     du = c * (lu + 1)
     m_max = max(len(m.beta) for m in models)
 
-    # per-model matrices in the common layout: history part (2 na_max rows: y, y^2 per lag, oldest first)
+    # per-model matrices in the common layout: history part (2 ka_max rows: y, y^2 per lag, oldest first)
     # and input part ([u lags, u lags^2, 1] rows); padded centres have beta = 0 and contribute nothing
-    Cy = np.zeros((G, 2 * na_max, m_max))
+    Cy = np.zeros((G, 2 * ka_max, m_max))
     Cu = np.zeros((G, 2 * du + 1, m_max))
     beta = np.zeros((G, m_max, 1))
     for g, m in enumerate(models):
         s, k = m.s, len(m.beta)
         cy, cu = m.centres[:, :m.ka], m.centres[:, m.ka:]
-        for i in range(1, m.ka + 1):  # lag i sits at history position na_max - i
-            p = na_max - i
+        for i in range(1, m.ka + 1):  # lag i sits at history position ka_max - i
+            p = ka_max - i
             Cy[g, 2 * p, :k] = 2 * s * cy[:, m.ka - i]
             Cy[g, 2 * p + 1, :k] = -s
         for j in range(c):
@@ -251,6 +252,7 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     beta1 = beta[0, :, 0]
     ay1 = Ay[0, :, 0]
     H0 = H[..., 0]  # the outputs alone, (G, S, na_max + T) strided view
+    kh = na_max - ka_max  # the kernel's history starts this many rows after the linear part's
     for t0 in range(N, T, steps):
         t1 = min(T, t0 + steps)
         live = int(np.searchsorted(-sorted_len, -(t0 + 1), side="right"))  # segments with row t0
@@ -260,7 +262,7 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
         if G == 1 and live == 1:  # the common predict case, in 1-D operations (half the overhead)
             P1, V1, h1 = P[0, :, 0], V[0, :, 0], H0[0, 0]
             for t in range(t0, t1):
-                np.dot(H1[t:t + na_max].reshape(-1), Cy1, out=e1)
+                np.dot(H1[t + kh:t + na_max].reshape(-1), Cy1, out=e1)
                 e1 += P1[t - t0]
                 np.exp2(e1, out=e1)
                 v = float(np.dot(e1, beta1))
@@ -272,7 +274,7 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
         for t in range(t0, t1):
             while live and sorted_len[live - 1] <= t:
                 live -= 1
-            hist = H[:, :live, t:t + na_max, :].reshape(G, live, 2 * na_max)
+            hist = H[:, :live, t + kh:t + na_max, :].reshape(G, live, 2 * ka_max)
             E = E_buf[:, :live] if live < S else E_buf
             np.matmul(hist, Cy, out=E)
             E += P[:live, t - t0].transpose(1, 0, 2)
