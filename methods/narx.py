@@ -49,14 +49,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
+from enginebench.declare import Declaration, flag, log_grid as grid, whole
 from enginebench.errors import MethodError
-from enginebench.declare import Declaration, flag, whole
-from enginebench.declare import log_grid as grid
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
+from enginebench.samples import Samples
 # the numerics; NARXFit and nystroem_ridge stay importable from here
 from enginebench.methods.narx_model import (KernelModel, NARXFit, Standardised, free_run, nystroem_ridge,
                                             regressors, standardise)
@@ -231,7 +230,7 @@ class NARX(GivenOrders, Method):
             U = [(np.asarray(data.segments[i].U, dtype=np.float64) - first.u_mean) / first.u_std for i in members]
             W = [(windows[i] - first.y_mean) / first.y_std for i in members]
             lengths = [len(data.segments[i].t) for i in members]
-            runs = free_run(models, U, W, lengths)  # (fits * k, segments, T)
+            runs = free_run(models, U, W, lengths, self._limits(first, models))  # (fits * k, segments, T)
             for f_idx, f in enumerate(fits):
                 for r, i in enumerate(members):
                     n = lengths[r]
@@ -241,6 +240,16 @@ class NARX(GivenOrders, Method):
                     results[f_idx][i] = traj[data.segments[i].rows]
                     flags[f_idx][i] = bad
         return [(arrays, fl) for arrays, fl in zip(results, flags)]  # type: ignore[misc]
+
+    @staticmethod
+    def _limits(first: NARXFit, models: Sequence[KernelModel]) -> np.ndarray:
+        """Each model's envelope in standardised units, widened by a millionth of its span: a run past it is out
+        of the envelope in measured units as well, so the free run may stop simulating it (``free_run``)."""
+        lower = (first.envelope.lower - first.y_mean) / first.y_std
+        upper = (first.envelope.upper - first.y_mean) / first.y_std
+        margin = 1e-6 * np.where(np.isfinite(upper - lower), upper - lower, 0.0)
+        targets = [m.target for m in models]
+        return np.stack([lower[targets] - margin[targets], upper[targets] + margin[targets]], axis=1)
 
     def predict(self, fitted: NARXFit, data: Samples) -> SegmentPredictions:
         """Free run of every segment from its init window, all segments batched."""
@@ -302,3 +311,9 @@ class NARX(GivenOrders, Method):
             "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
             **fitted.info,
         }
+
+    def c_model(self, fitted):
+        """The C step of ``fitted`` for an FMU and the real-time figures (``methods/export``)."""
+        from enginebench.methods.export.models import narx_c
+
+        return narx_c(fitted)

@@ -163,18 +163,22 @@ def _input_lags(U: np.ndarray, lags: int, length: int) -> np.ndarray:
 
 
 def free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
-             lengths: Sequence[int]) -> np.ndarray:
+             lengths: Sequence[int], limits: np.ndarray | None = None) -> np.ndarray:
     """Simulate every model on every segment at once, in standardised units: (models, segments, max length).
 
     See ``_free_run``; BLAS runs single-threaded here: each step's products are far too
-    small for threads, which would only add synchronisation to every step.
+    small for threads, which would only add synchronisation to every step. ``limits``
+    (models, 2): each model's envelope (lower, upper) in standardised units, a little wider
+    than the one ``Envelope.clip_run`` applies; a model that leaves it on every segment is
+    no longer simulated (its rows after that are undefined: the clip holds its run from the
+    first row out, which it has already reached).
     """
     with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):  # blow-ups are flagged later
-        return _free_run(models, inputs, windows, lengths)
+        return _free_run(models, inputs, windows, lengths, limits)
 
 
 def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
-              lengths: Sequence[int]) -> np.ndarray:
+              lengths: Sequence[int], limits: np.ndarray | None = None) -> np.ndarray:
     """The time loop of ``free_run``.
 
     ``inputs[s]`` (n_s, c) standardised inputs, ``windows[s]`` (N, k) standardised measured
@@ -247,20 +251,23 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     E_buf = np.empty((G, S, m_max))
     y_buf = np.empty((G, S, 1))
     e1 = np.empty(m_max)
-    Cy1, H1 = Cy[0], H[0, 0]
     Cu2 = np.ascontiguousarray(Cu.transpose(1, 0, 2).reshape(2 * du + 1, G * m_max))
-    beta1 = beta[0, :, 0]
-    ay1 = Ay[0, :, 0]
     H0 = H[..., 0]  # the outputs alone, (G, S, na_max + T) strided view
     kh = na_max - ka_max  # the kernel's history starts this many rows after the linear part's
+    # retirement: models are kept in positions; those still simulated are the prefix [0, Ga)
+    perm = np.arange(G)  # position -> model
+    dead = np.zeros((G, S), dtype=bool)  # left its limits on that (sorted) segment
+    lim = None if limits is None else np.array(limits, dtype=np.float64).reshape(G, 2)
+    Ga = G
     for t0 in range(N, T, steps):
         t1 = min(T, t0 + steps)
         live = int(np.searchsorted(-sorted_len, -(t0 + 1), side="right"))  # segments with row t0
         # the input part of every step's exponent in the block, one 2-D product (BLAS): rows (segment, step),
         # columns (model, centre); a step then adds its row to the history product and takes one exp2
-        P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2).reshape(live, t1 - t0, G, m_max)
-        if G == 1 and live == 1:  # the common predict case, in 1-D operations (half the overhead)
-            P1, V1, h1 = P[0, :, 0], V[0, :, 0], H0[0, 0]
+        P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2[:, :Ga * m_max]).reshape(live, t1 - t0, Ga, m_max)
+        if Ga == 1 and live == 1:  # the common predict case, in 1-D operations (half the overhead)
+            P1, V1, h1, H1 = P[0, :, 0], V[0, :, 0], H0[0, 0], H[0, 0]
+            Cy1, beta1, ay1 = Cy[0], beta[0, :, 0], Ay[0, :, 0]
             for t in range(t0, t1):
                 np.dot(H1[t + kh:t + na_max].reshape(-1), Cy1, out=e1)
                 e1 += P1[t - t0]
@@ -270,25 +277,59 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
                     v += float(np.dot(h1[t:t + na_max], ay1)) + V1[t]
                 H1[na_max + t, 0] = v
                 H1[na_max + t, 1] = v * v
-            continue
-        for t in range(t0, t1):
-            while live and sorted_len[live - 1] <= t:
-                live -= 1
-            hist = H[:, :live, t + kh:t + na_max, :].reshape(G, live, 2 * ka_max)
-            E = E_buf[:, :live] if live < S else E_buf
-            np.matmul(hist, Cy, out=E)
-            E += P[:live, t - t0].transpose(1, 0, 2)
-            np.exp2(E, out=E)
-            y = y_buf[:, :live] if live < S else y_buf
-            np.matmul(E, beta, out=y)
-            if linear:
-                y += np.matmul(H0[:, :live, t:t + na_max], Ay)
-                y += V[:live, t].T[..., None]
-            H[:, :live, na_max + t, 0] = y[..., 0]
-            np.square(y[..., 0], out=H[:, :live, na_max + t, 1])
+        else:
+            for t in range(t0, t1):
+                while live and sorted_len[live - 1] <= t:
+                    live -= 1
+                hist = H[:Ga, :live, t + kh:t + na_max, :].reshape(Ga, live, 2 * ka_max)
+                E = E_buf[:Ga, :live]
+                np.matmul(hist, Cy[:Ga], out=E)
+                E += P[:live, t - t0].transpose(1, 0, 2)
+                np.exp2(E, out=E)
+                y = y_buf[:Ga, :live]
+                np.matmul(E, beta[:Ga], out=y)
+                if linear:
+                    y += np.matmul(H0[:Ga, :live, t:t + na_max], Ay[:Ga])
+                    y += V[:live, t, :Ga].T[..., None]
+                H[:Ga, :live, na_max + t, 0] = y[..., 0]
+                np.square(y[..., 0], out=H[:Ga, :live, na_max + t, 1])
+        if lim is not None and t1 < T:
+            Ga = _retire(H, Cy, Cu2, beta, Ay, V, perm, dead, lim, Ga, m_max, na_max + t0, na_max + t1,
+                         int(np.searchsorted(-sorted_len, -(t1 + 1), side="right")))
+            if Ga == 0:
+                break
     out = np.empty((G, S, T))
-    out[:, order] = H[:, :, na_max:, 0]
+    out[perm[:, None], order[None, :]] = H[:, :, na_max:, 0]
     return out
+
+
+def _retire(H: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray, Ay: np.ndarray, V: np.ndarray,
+            perm: np.ndarray, dead: np.ndarray, lim: np.ndarray, Ga: int, m: int, r0: int, r1: int, live: int) -> int:
+    """Move the models that left their limits on every segment still running past the simulated prefix.
+
+    Rows ``r0:r1`` of ``H`` were just simulated. A model whose output left ``lim`` (lower,
+    upper; NaN counts as out) on a segment is dead there; once it is dead on each of the
+    ``live`` segments still running it is swapped behind position ``Ga`` with every
+    per-model array, so later steps skip it. What it would simulate next is never read: its
+    run is held from its first row out of the envelope (``Envelope.clip_run``), which lies
+    in the rows already simulated. Returns the new ``Ga``.
+    """
+    vals = H[:Ga, :live, r0:r1, 0]
+    with np.errstate(invalid="ignore"):
+        inside = (vals >= lim[:Ga, 0, None, None]) & (vals <= lim[:Ga, 1, None, None])
+    dead[:Ga, :live] |= ~inside.all(axis=2)
+    if live == 0:
+        return 0
+    for p in np.flatnonzero(dead[:Ga, :live].all(axis=1))[::-1]:  # from the back: swaps keep earlier positions
+        q = Ga - 1
+        if p != q:
+            for arr in (H, Cy, beta, Ay, dead, lim, perm):
+                arr[[p, q]] = arr[[q, p]]
+            V[:, :, [p, q]] = V[:, :, [q, p]]
+            Cu2[:, p * m:(p + 1) * m], Cu2[:, q * m:(q + 1) * m] = Cu2[:, q * m:(q + 1) * m].copy(), \
+                Cu2[:, p * m:(p + 1) * m].copy()
+        Ga -= 1
+    return Ga
 
 
 def nystroem_ridge(Z: np.ndarray, y: np.ndarray, C: np.ndarray, gamma: float, lambdas: np.ndarray,

@@ -10,12 +10,13 @@ import pandas as pd
 import pytest
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import RawSegments, SamplePool, Samples
+from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
-from enginebench.methods.base import SegmentPredictions, grid_points
+from enginebench.method import SegmentPredictions, grid_points
 from enginebench.methods.freerun import Envelope
 from enginebench.methods.narx import NARX, NARXFit
+from enginebench.samples import Samples
 
 PARAMS = {"lags": 2, "nk": 0, "gamma": 0.3, "lambda": 1e-6}
 
@@ -238,3 +239,35 @@ def test_selection_skips_lags_the_fitting_pieces_cannot_carry():
     grid = [{"lags": 12, "nk": 0, "gamma": 0.1, "lambda": 1e-4}, {"lags": 2, "nk": 0, "gamma": 0.1, "lambda": 1e-4}]
     out = NARX().predict_grid(train, test.without_targets(), grid, np.random.default_rng(0))
     assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()
+
+
+def test_models_that_leave_their_limits_are_retired_without_changing_any_run_up_to_the_clip():
+    """free_run with limits: a diverging model stops being simulated once it is out on every segment; every
+    model's rows up to its first row out of the limits equal the run without limits, bit for bit."""
+    from enginebench.methods.narx_model import KernelModel, free_run
+
+    rng = np.random.default_rng(3)
+    c, ka, kb = 1, 2, 2
+
+    def model(a0: float, target: int = 0) -> KernelModel:
+        centres = rng.normal(size=(7, ka + c * kb))
+        return KernelModel(na=3, nb=2, nk=0, ka=ka, kb=kb, a=np.array([a0, 0.1, 0.0]), b=np.array([[0.3, -0.2]]),
+                           c0=0.01, centres=centres, beta=rng.normal(size=7) * 0.1, gamma=0.5, lam=1e-6,
+                           target=target)
+
+    models = [model(1.3), model(0.5), model(1.6), model(0.2), model(1.2)]  # 0, 2 and 4 diverge
+    lengths = [400, 250, 330]
+    U = [rng.normal(size=(n, c)) for n in lengths]
+    W = [rng.normal(size=(5, 1)) for _ in lengths]
+    limits = np.tile([-50.0, 50.0], (len(models), 1))
+    full = free_run(models, U, W, lengths)
+    retired = free_run(models, U, W, lengths, limits)
+    diverged = 0
+    for g in range(len(models)):
+        for s, n in enumerate(lengths):
+            run = full[g, s, 5:n]
+            out = np.flatnonzero(~((run >= -50.0) & (run <= 50.0)))
+            stop = 5 + (out[0] + 1 if out.size else n - 5)
+            diverged += bool(out.size)
+            np.testing.assert_array_equal(retired[g, s, :stop], full[g, s, :stop])
+    assert diverged == 9  # three models on three segments: the retirement was exercised
