@@ -1,0 +1,144 @@
+"""``enginebench export``: a run's stored model as an FMU, simulated back with fmpy against the run's predictions.
+
+The run must have stored its models (``run --keep-models``): the stored model holds the fitted state and
+the test part with the job's predictions of it (``results/model_store.py``). The FMU is built from the
+method's C step (``Method.c_model``), then driven by fmpy over every test segment, from the same init
+window the job used; the largest difference to the job's predictions at the evaluated rows is the
+verdict, relative to the largest |prediction| of each target (``TOLERANCE``: 1e-9, float64).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from enginebench.errors import MethodError, StoreError
+from enginebench.methods.export import check_exportable
+from enginebench.methods.export.fmu import build_fmu, simulate_fmu
+from enginebench.methods.export.harness import CStep, step_figures
+from enginebench.results.model_store import MODELS_DIR, StoredModel, load_model, read_model_file
+
+TOLERANCE = 1e-9
+"""Largest accepted difference between the FMU's outputs and the run's predictions, relative to the largest
+|prediction| of the target (float64 arithmetic in both; only the order of a few sums differs)."""
+
+
+@dataclass
+class ExportResult:
+    path: Path
+    method: str
+    job: str
+    steps: int
+    max_abs: float
+    max_rel: float
+    tolerance: float
+    timing: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.max_rel <= self.tolerance)
+
+
+def find_model(run_path: Path, run_id: str, method: str, target: str | None, repetition: int | None) -> Path:
+    """The stored model of ``method`` (and ``target``, ``repetition``: the lowest one when not given) in a run."""
+    folder = Path(run_path) / MODELS_DIR
+    found = []
+    for path in sorted(folder.glob("*.npz")) if folder.is_dir() else []:
+        try:
+            job = read_model_file(path)[0].get("job", {})
+        except StoreError:
+            continue
+        found.append((path, job))
+    if not found:
+        raise StoreError(f"run {run_id} stored no models; run the experiment again with `enginebench run EXPERIMENT "
+                         "--keep-models` (or [store] models = true) to export one")
+    mine = [(p, j) for p, j in found if j.get("method") == method]
+    if not mine:
+        methods = sorted({str(j.get("method")) for _, j in found})
+        raise StoreError(f"run {run_id} stored no model of method {method!r}; it stored {', '.join(methods)}")
+    if target is not None:
+        mine = [(p, j) for p, j in mine if j.get("target") == target or
+                (j.get("target") == "(all targets)" and target in read_model_file(p)[0]["data"]["target_names"])]
+        if not mine:
+            raise StoreError(f"run {run_id}: method {method!r} stored no model of target {target!r}")
+    targets = sorted({str(j.get("target")) for _, j in mine})
+    if len(targets) > 1:
+        raise StoreError(f"run {run_id}: method {method!r} stored models of several targets ({', '.join(targets)}); "
+                         "choose one with --target")
+    if repetition is not None:
+        mine = [(p, j) for p, j in mine if j.get("repetition") == repetition]
+        if not mine:
+            raise StoreError(f"run {run_id}: method {method!r} stored no model of repetition {repetition}")
+    return sorted(mine, key=lambda pj: (pj[1].get("repetition", 0), str(pj[1].get("split")), str(pj[0])))[0][0]
+
+
+def _windows(seg: dict[str, Any]) -> np.ndarray:
+    y_init = seg.get("y_init")
+    return y_init if y_init is not None and len(y_init) else np.reshape(seg["y0"], (1, -1))
+
+
+def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: float = TOLERANCE,
+               run_id: str = "") -> ExportResult:
+    """Build ``out`` from the stored model ``model_path`` and check it against the run's test predictions."""
+    stored: StoredModel = load_model(model_path)
+    data = stored.meta["data"]
+    if data["mode"] != "simulation":
+        raise MethodError(f"method {stored.method.name!r}: an FMU steps in time; this model was tested in mode "
+                          f"{data['mode']!r} (export models of simulation-mode runs)")
+    model = check_exportable(stored.method, stored.fitted, tuple(data["target_names"]))
+    if not stored.check_data:
+        raise StoreError(f"{model_path}: the stored model holds no test predictions to check an export against")
+    in_cols = [data["input_names"].index(c) for c in model.inputs]
+    out_cols = [data["target_names"].index(c) for c in model.targets]
+    first = stored.check_data[0]
+    stop = float(len(first["U"]) - 1) * float(data["dt"])
+    resources = {"enginebench": stored.meta.get("versions", {}), "job": stored.meta.get("job"), "run": run_id,
+                 "method": stored.meta["method"], "params": stored.meta.get("params"),
+                 "stored_model_sha256": stored.meta.get("sha256"), "dt_s": data["dt"],
+                 "init_samples": int(data["init_samples"])}
+    units = {k: v for k, v in data.get("units", {}).items() if k in (*model.inputs, *model.targets)}
+    init = max(int(data["init_samples"]), 1)
+    about = (f"{stored.meta['method']} model of {', '.join(model.targets)} from {', '.join(model.inputs) or 'no inputs'}"
+             f" (enginebench run {run_id or '?'}, job {stored.meta.get('job', {}).get('key', '?')}); fixed step "
+             f"{data['dt']} s")
+    path = build_fmu(model, out, dt=float(data["dt"]), init=init, stop=stop, about=about, resources=resources,
+                     units=units)
+    max_abs, max_rel, steps = 0.0, 0.0, 0
+    fmu_times, c_times = [], []
+    step = CStep(model) if timing else None
+    try:
+        for seg in stored.check_data:
+            U = np.asarray(seg["U"], dtype=np.float64)[:, in_cols]
+            window = _windows(seg)[:, out_cols]
+            Y, t = simulate_fmu(path, U, window, len(window), float(data["dt"]), timing=timing)
+            rows = np.asarray(seg["rows"], dtype=np.int64)
+            pred = np.asarray(seg["prediction"], dtype=np.float64)[:, out_cols]
+            diff = np.abs(Y[rows] - pred)
+            scale = np.maximum(np.abs(pred).max(axis=0, initial=0.0), np.finfo(float).tiny)
+            max_abs = max(max_abs, float(diff.max(initial=0.0)))
+            max_rel = max(max_rel, float((diff.max(axis=0, initial=0.0) / scale).max(initial=0.0)))
+            steps += len(rows)
+            if timing:
+                fmu_times.append(t)
+                c_times.append(step.run(U, window, len(window), timing=True)[1])  # type: ignore[union-attr]
+    finally:
+        if step is not None:
+            step.close()
+    if not np.isfinite(max_rel):
+        max_rel = float("inf")
+    figures: dict[str, Any] = {}
+    if timing:
+        figures = {"c_step": step_figures(np.concatenate(c_times), float(data["dt"]), "c-step"),
+                   "fmu_via_fmpy": step_figures(np.concatenate(fmu_times), float(data["dt"]), "fmpy")}
+    return ExportResult(path=path, method=stored.meta["method"], job=str(stored.meta.get("job", {}).get("key")),
+                        steps=steps, max_abs=max_abs, max_rel=max_rel, tolerance=tolerance, timing=figures)
+
+
+def result_json(result: ExportResult) -> str:
+    return json.dumps({"fmu": str(result.path), "method": result.method, "job": result.job, "steps": result.steps,
+                       "max_abs_difference": result.max_abs, "max_relative_difference": result.max_rel,
+                       "tolerance": result.tolerance, "ok": result.ok, "timing": result.timing}, indent=1)

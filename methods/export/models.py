@@ -1,0 +1,117 @@
+"""The C steps of the exportable built-in methods (each method's ``c_model`` hook calls one of these).
+
+Each reproduces its method's prediction arithmetic in the same order where the order matters for
+rounding (ARX: the input sum per lag, then the output lags as ``lfilter``'s direct form II transposed
+accumulates them); a Gaussian kernel is exp(-g |z - c|^2) summed directly (numpy forms the squared
+distances through |z|^2 - 2 z.c + |c|^2), so the two differ by rounding only.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from enginebench.methods.export import CModel, c_double
+
+
+def arx_c(fitted: Any) -> CModel:
+    """``arx``: per target y = c + sum_l sum_i b u_i(t-nk-l) + sum_l a_l y(t-l), raw units."""
+    k, m = len(fitted.target_names), len(fitted.input_names)
+    na, nb, nk = int(fitted.na), int(fitted.nb), int(fitted.nk)
+    body = f"""    for (int j = 0; j < NY; j++) {{
+        double v = ARX_C[j];
+        for (int l = 0; l < {nb}; l++) {{
+            double s = 0.0;
+            for (int i = 0; i < NU; i++) s += uh[i * LU + {nk} + l] * ARX_B[(j * NU + i) * {nb} + l];
+            v += s;
+        }}
+        double acc = 0.0;
+        for (int l = {na} - 1; l >= 0; l--) acc = acc + ARX_A[j * {max(na, 1)} + l] * yh[j * LY + l];
+        ys[j] = acc + v;
+    }}"""
+    return CModel(method="arx", inputs=tuple(fitted.input_names), targets=tuple(fitted.target_names),
+                  u_lags=nk + nb, y_lags=na, body=body,
+                  constants={"ARX_A": np.asarray(fitted.a, dtype=np.float64).reshape(k, na),
+                             "ARX_B": np.asarray(fitted.b, dtype=np.float64).reshape(k, m, nb),
+                             "ARX_C": np.asarray(fitted.c, dtype=np.float64).reshape(k)},
+                  lower=fitted.envelope.lower, upper=fitted.envelope.upper)
+
+
+def narx_c(fitted: Any) -> CModel:
+    """``narx``: per target (standardised) kernel sum + (output lags + (input lags + c0)), as ``free_run``."""
+    consts: dict[str, np.ndarray] = {}
+    parts = []
+    na_max = max(md.na for md in fitted.models)
+    lu = max(md.nk + md.nb for md in fitted.models)
+    for g, md in enumerate(fitted.models):
+        d = int(md.centres.shape[1])
+        consts[f"NX{g}_A"] = np.asarray(md.a, dtype=np.float64)
+        consts[f"NX{g}_B"] = np.asarray(md.b, dtype=np.float64)
+        consts[f"NX{g}_C"] = np.asarray(md.centres, dtype=np.float64)
+        consts[f"NX{g}_BETA"] = np.asarray(md.beta, dtype=np.float64)
+        j = int(md.target)
+        z = [f"yh[{j} * LY + {md.ka - q - 1}]" for q in range(md.ka)]
+        c = md.b.shape[0]
+        z += [f"uh[{i} * LU + {md.nk + l}]" for i in range(c) for l in range(md.kb)]
+        zdecl = ", ".join(z) if z else "0.0"
+        parts.append(f"""    {{ /* target {j} */
+        const double z[{max(len(z), 1)}] = {{{zdecl}}};
+        double kern = 0.0;
+        for (int i = 0; i < {len(md.beta)}; i++) {{
+            double dist = 0.0;
+            for (int q = 0; q < {d}; q++) {{ double e = z[q] - NX{g}_C[i * {d} + q]; dist += e * e; }}
+            kern += NX{g}_BETA[i] * exp(-{c_double(md.gamma / md.d)} * dist);
+        }}
+        double hist = 0.0;
+        for (int l = 0; l < {md.na}; l++) hist += NX{g}_A[l] * yh[{j} * LY + l];
+        double v = 0.0;
+        for (int i = 0; i < {c}; i++) for (int l = 0; l < {md.nb}; l++) v += uh[i * LU + {md.nk} + l] * NX{g}_B[i * {md.nb} + l];
+        ys[{j}] = kern + (hist + (v + {c_double(md.c0)}));
+    }}""")
+    return CModel(method="narx", inputs=tuple(fitted.input_names), targets=tuple(fitted.target_names),
+                  u_lags=lu, y_lags=na_max, body="\n".join(parts), constants=consts,
+                  u_mean=fitted.u_mean, u_std=fitted.u_std, y_mean=fitted.y_mean, y_std=fitted.y_std,
+                  lower=fitted.envelope.lower, upper=fitted.envelope.upper)
+
+
+def naive_mean_c(fitted: Any) -> CModel:
+    """``naive-mean``: the training mean of each target, whatever the inputs (no inputs; the data's targets)."""
+    mean = np.asarray(fitted, dtype=np.float64).ravel()
+    return CModel(method="naive-mean", inputs=(), targets=(), u_lags=1, y_lags=0,
+                  body="    for (int j = 0; j < NY; j++) ys[j] = NAIVE_MEAN[j];", constants={"NAIVE_MEAN": mean},
+                  y_mean=np.zeros(len(mean)), y_std=np.ones(len(mean)))
+
+
+def nfir_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
+    """``nfir``: Gaussian-kernel regression on the inputs at the fitted lags (edge padding), no feedback."""
+    k = fitted.krls
+    lags = np.asarray(fitted.lags, dtype=np.int64)
+    d = len(fitted.inputs) * len(lags)
+    mean = np.zeros(d) if getattr(k.scaler, "mean_", None) is None else np.asarray(k.scaler.mean_, dtype=np.float64)
+    scale = np.ones(d) if getattr(k.scaler, "scale_", None) is None else np.asarray(k.scaler.scale_, dtype=np.float64)
+    alpha = np.asarray(k.alpha, dtype=np.float64)
+    n, ny = alpha.shape
+    body = f"""    double x[{d}];
+    for (int i = 0; i < NU; i++) for (int l = 0; l < {len(lags)}; l++) {{
+        int q = i * {len(lags)} + l;
+        x[q] = (uh[i * LU + NF_LAGS[l]] - NF_MEAN[q]) / NF_SCALE[q];
+    }}
+    double xx = 0.0;
+    for (int q = 0; q < {d}; q++) xx += x[q] * x[q];
+    for (int j = 0; j < NY; j++) ys[j] = 0.0;
+    for (int r = 0; r < {n}; r++) {{
+        double dot = 0.0;
+        for (int q = 0; q < {d}; q++) dot += x[q] * NF_X[r * {d} + q];
+        double dist = dot * -2.0 + xx + NF_XN[r];
+        if (!(dist > 0.0)) dist = 0.0;
+        double w = exp(dist * -{c_double(k.gamma)});
+        for (int j = 0; j < NY; j++) ys[j] += w * NF_ALPHA[r * NY + j];
+    }}
+    for (int j = 0; j < NY; j++) ys[j] += NF_YMEAN[j];"""
+    return CModel(method="nfir", inputs=tuple(fitted.inputs), targets=targets, u_lags=int(lags.max()) + 1, y_lags=0,
+                  body=body, constants={"NF_LAGS": lags, "NF_MEAN": mean, "NF_SCALE": scale,
+                                        "NF_X": np.asarray(k.X_train, dtype=np.float64), "NF_ALPHA": alpha,
+                                        "NF_XN": np.einsum("ij,ij->i", k.X_train, k.X_train),
+                                        "NF_YMEAN": np.asarray(k.y_mean, dtype=np.float64).reshape(ny)},
+                  y_mean=np.zeros(ny), y_std=np.ones(ny))
