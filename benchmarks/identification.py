@@ -33,13 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
+from enginebench import registry
 from enginebench.datasets import catalog
 from enginebench.errors import EngineBenchError
 from enginebench.experiments.jobs import Job, method_rng, refit_samples, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import load_spec
-from enginebench.methods import registry
 from enginebench.methods.peers import N4SID, SysIdentPyNARX
 from enginebench.results import metrics
 

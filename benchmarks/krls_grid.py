@@ -22,9 +22,9 @@ from sklearn.kernel_ridge import KernelRidge
 from threadpoolctl import threadpool_limits
 from sklearn.model_selection import GridSearchCV, KFold
 
-from enginebench.datasets.samples import Samples, SegmentSamples
-from enginebench.methods.base import grid_points, log_grid
+from enginebench.method import grid_points, log_grid
 from enginebench.methods.krls import KRLS
+from enginebench.samples import Samples, SegmentSamples
 
 TIE_RTOL = 1e-12
 

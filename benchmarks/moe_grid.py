@@ -22,14 +22,12 @@ import numpy as np
 import torch
 
 from enginebench.datasets import catalog
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.splits import make_splits
 from enginebench.experiments.jobs import subsample_segments
 from enginebench.experiments.spec import load_spec
-from enginebench.methods.base import grid_points
-from enginebench.methods.moe import MoE
-from enginebench.methods.moe import grid as grid_training
-from enginebench.methods.moe import training
+from enginebench.method import grid_points
+from enginebench.methods.moe import MoE, grid as grid_training, training
 
 
 def _load() -> str:

@@ -21,12 +21,12 @@ import pandas as pd
 import scipy.linalg
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Column, Schema
-from enginebench.methods.base import grid_points
-from enginebench.methods.numerics.kernels import gaussian, sq_distances
+from enginebench.method import grid_points
 from enginebench.methods.krls import KRLS
 from enginebench.methods.mtl_krls import MTLKRLS
+from enginebench.methods.numerics.kernels import gaussian, sq_distances
 
 
 class SmoothPM:

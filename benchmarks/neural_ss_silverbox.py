@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from enginebench import registry
 from enginebench.datasets import catalog
 from enginebench.errors import EngineBenchError
 from enginebench.experiments.jobs import Job, method_rng, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import load_spec
-from enginebench.methods import registry
 from enginebench.results import metrics
 
 FIRST = 32000

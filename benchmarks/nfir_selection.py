@@ -36,14 +36,15 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import Samples, make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.experiments.selection import record_blocks, select
 from enginebench.experiments.spec import Selection
-from enginebench.methods.base import Params, grid_points
+from enginebench.method import Params, grid_points
 from enginebench.methods.krls import KRLS
 from enginebench.methods.nfir import NFIR, PREDICT_CHUNK
 from enginebench.methods.numerics.kernels import Spectral, gaussian, sq_distances
+from enginebench.samples import Samples
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from short_record_selection import simulate  # noqa: E402  (the tanks-like generator, a sibling script)

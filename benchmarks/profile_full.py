@@ -31,9 +31,10 @@ import tempfile
 import time
 from collections import defaultdict
 
+from enginebench.experiments.engine import plan
 from enginebench.experiments.executors import _limit_threads, default_workers
 from enginebench.experiments.jobs import run_job
-from enginebench.experiments.runner import plan, prepare
+from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import load_spec
 from enginebench.results.store import RunStore
 

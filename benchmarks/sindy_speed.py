@@ -33,11 +33,11 @@ import time
 import numpy as np
 
 from enginebench.datasets import catalog
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.splits import make_splits
 from enginebench.experiments.selection import record_blocks
+from enginebench.method import grid_points
 from enginebench.methods import sindy as sindy_module
-from enginebench.methods.base import grid_points
 from enginebench.methods.sindy import SINDy, initial_state, simulate_batch
 from enginebench.methods.sindy_grid import clear_segment_cache
 

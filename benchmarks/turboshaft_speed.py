@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from enginebench.datasets import catalog
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.splits import make_splits
 from enginebench.experiments.jobs import subsample_segments
 from enginebench.experiments.spec import load_spec

@@ -26,7 +26,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from enginebench.datasets import catalog
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.splits import make_splits
 from enginebench.methods.numerics.derivatives import differentiate, window_bounds
 from enginebench.methods.numerics.tv_admm import integral_matrix, kkt_violation, objective

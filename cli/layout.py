@@ -97,7 +97,7 @@ def plots(run_ref: str, out_dir: str, methods, trajectories: int, part: str, rep
     hyperparameters the run selected (the turboshaft-moe paper's Figs. 3-6 layout); a scatter per method
     is written as well.
     """
-    from enginebench.experiments.plots_run import plot_run
+    from enginebench.reports.trajectories import plot_run
     from enginebench.results.store import RunStore
 
     load_plugins(plugins)

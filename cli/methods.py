@@ -16,7 +16,7 @@ def methods() -> None:
 @plugin_option
 def methods_list(plugins) -> None:
     """One line per method: name, family, supported modes, summary (an installed plugin that fails to load: why)."""
-    from enginebench.methods.registry import available, broken
+    from enginebench.registry import available, broken
 
     load_plugins(plugins)
     found, bad = available(), broken()
@@ -34,7 +34,7 @@ def methods_show(name: str, plugins) -> None:
     """Family, modes, the docstring (else the summary) and every option (type, default, unit, meaning) of method NAME."""
     import inspect
 
-    from enginebench.methods.registry import get
+    from enginebench.registry import get
 
     load_plugins(plugins)
     cls = get(name)

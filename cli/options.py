@@ -21,7 +21,7 @@ plugin_option = click.option(
 
 def load_plugins(plugins: tuple[str, ...]) -> None:
     """Load each --plugin file (one error line naming the file if it fails)."""
-    from enginebench.methods.registry import load_plugin_file
+    from enginebench.registry import load_plugin_file
 
     for path in plugins:
         load_plugin_file(path)

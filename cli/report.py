@@ -38,7 +38,7 @@ def report(run_ref: str, out_dir: str, metrics: str, paired_metric: str, figures
     gate bands). A learning-curve run gets its curve instead. report.html shows the same
     re-fit as zoomable plots, with the table sortable, offline (plotly inlined).
     """
-    from enginebench.experiments.interactive_report import write_reports
+    from enginebench.reports.interactive import write_reports
     from enginebench.results.store import RunStore
 
     load_plugins(plugins)
@@ -107,7 +107,7 @@ def export(run_ref: str, tracking_uri: str, experiment, artifacts, with_report: 
     with tempfile.TemporaryDirectory(prefix="enginebench-report-") as tmp:
         report_dir = None
         if with_report:
-            from enginebench.experiments.report import write_report
+            from enginebench.reports.static import write_report
 
             written = write_report(run, tmp, figures=figures)
             for note in written.notes:

@@ -5,8 +5,9 @@ once (and can ``spill`` them to one memory-mapped file shared by worker processe
 a ``SamplePool`` stands for the ``Samples`` of one (targets, mode, window) setting and
 builds the feature rows of only the rows a job draws (``take``, ``batches``). What the
 samples look like to a method (``Samples``, ``SegmentSamples``, the window features'
-names) is ``samples.py``, which re-exports these names; this module is how the rows are
-stored and drawn, so that sharing and memory use stay apart from the contract.
+names) is ``enginebench/samples.py``; this module is how the rows are stored and drawn, so
+that sharing and memory use stay apart from the contract, and ``make_samples`` builds a
+dataset's samples through a pool.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from enginebench.datasets.dataset import TIME, Dataset
-from enginebench.datasets.samples import MODES, Samples, SegmentSamples, iter_batches, lagged_feature_names
+from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError
+from enginebench.samples import MODES, Samples, SegmentSamples, iter_batches, lagged_feature_names
 
 
 @dataclass(frozen=True, eq=False)
@@ -252,3 +254,35 @@ class SamplePool:
         """Consecutive blocks of at most ``max_rows`` rows, in order (a segment may span blocks);
         ``features=False`` builds no feature rows (``take``)."""
         return iter_batches(self, max_rows, features)
+
+
+def check_targets(schema: Schema, targets: Sequence[str]) -> list[str]:
+    """``targets`` as a list, each checked to be an 'output' column of ``schema`` (unknown names list all columns)."""
+    targets = list(targets)
+    if not targets:
+        raise DataError("no target given")
+    for name in targets:
+        col = schema[name]
+        if col.role != "output":
+            raise DataError(f"column {name!r} has role {col.role!r}; only 'output' columns can be targets")
+    return targets
+
+
+def make_samples(
+    ds: Dataset,
+    targets: Sequence[str],
+    mode: str = "static",
+    window: float = 0.0,
+    *,
+    inputs: Sequence[str] | None = None,
+    physical_model: Any = None,
+) -> Samples:
+    """Build the samples of ``ds`` for predicting ``targets`` in ``mode``.
+
+    ``window`` (seconds) is the past horizon Delta of the ``window`` mode: inputs over
+    [t - Delta, t] and measured outputs over [t - Delta, t - dt]. The first Delta/dt rows
+    of each segment, whose window is incomplete, are not evaluated.
+    """
+    targets = check_targets(ds.schema, targets)
+    raw = RawSegments.from_dataset(ds, inputs=inputs, outputs=targets)
+    return SamplePool(raw, targets, mode, window, physical_model=physical_model).materialize()

@@ -8,8 +8,8 @@ entry point group) imports from here only::
 ``Declaration`` and the field constructors of ``declare`` (``declare.flag``, ``declare.whole``,
 ``declare.log_grid``...) declare a method's options once (``Method.declared_options``).
 
-Names here are kept stable across releases; the modules they come from (methods.base,
-datasets.samples, datasets.pools, testing) are internal and may move. ``check_method``
+Names here are kept stable across releases; the modules they come from (enginebench.method,
+enginebench.samples, datasets.pools, testing) are internal and may move. ``check_method``
 is the conformance suite for a plugin's tests; ``SamplePool``/``RawSegments``/
 ``tiny_samples`` build samples for tests of one's own.
 
@@ -28,22 +28,14 @@ from __future__ import annotations
 
 from enginebench import declare
 from enginebench.datasets.pools import RawSegments, SamplePool
-from enginebench.datasets.samples import Samples, SegmentSamples
 from enginebench.declare import Declaration
 from enginebench.errors import MethodError, StoreError
-from enginebench.methods.base import (
-    FAMILIES,
-    Method,
-    Params,
-    SearchSpace,
-    SegmentPredictions,
-    check_log_grid_option,
-    grid_points,
-    log_grid,
-    split_rows,
+from enginebench.method import (
+    FAMILIES, Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, grid_points, log_grid, split_rows,
 )
 from enginebench.results.picks import folds_frame, picks_frame
 from enginebench.results.store import Run, open_run
+from enginebench.samples import Samples, SegmentSamples
 from enginebench.testing import ConformanceError, ConformanceReport, check_method, tiny_samples
 
 __all__ = [

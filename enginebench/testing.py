@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method
+from enginebench.method import Method
 from enginebench.testing_checks import (CheckFailed, CheckRun, check_attributes, check_bad_input, check_determinism,
                                         check_leakage, check_options, check_pickle, check_shapes)
 from enginebench.testing_data import CHECKED_MODES, TINY_INIT, TinyLinearPM, tiny_datasets, tiny_samples

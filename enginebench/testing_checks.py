@@ -18,9 +18,9 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from enginebench.datasets.dataset import SEGMENT, Dataset
-from enginebench.datasets.samples import MODES, Samples
 from enginebench.errors import DataError, EngineBenchError
-from enginebench.methods.base import FAMILIES, Method, SegmentPredictions, grid_points
+from enginebench.method import FAMILIES, Method, SegmentPredictions, grid_points
+from enginebench.samples import MODES, Samples
 from enginebench.testing_data import TINY_INIT, samples_of
 
 UNKNOWN_OPTION = "no_such_option_for_check_method"
@@ -74,7 +74,7 @@ def _check_flags(preds: Any, data: Samples, what: str) -> np.ndarray:
     """The ``diverged`` flags of a simulating method's predictions: one bool per segment."""
     if not isinstance(preds, SegmentPredictions):
         raise CheckFailed(f"{what} returned {type(preds).__name__}, not SegmentPredictions; a simulating method returns "
-                          f"SegmentPredictions(arrays, diverged=flags) (enginebench.methods.base), one flag per segment")
+                          f"SegmentPredictions(arrays, diverged=flags) (enginebench.method), one flag per segment")
     flags = np.asarray(preds.diverged)
     if flags.dtype != bool or flags.shape != (len(data.segments),):
         raise CheckFailed(f"{what} returned diverged flags of dtype {flags.dtype} and shape {flags.shape}; expected one "
@@ -177,7 +177,7 @@ def _with_segment(data: Samples, k: int, **changes: Any) -> Samples:
 
 def check_attributes(cls: type) -> None:
     if not (isinstance(cls, type) and issubclass(cls, Method)):
-        raise CheckFailed(f"{cls!r} is not a subclass of enginebench.methods.base.Method")
+        raise CheckFailed(f"{cls!r} is not a subclass of enginebench.method.Method")
     if not isinstance(cls.name, str) or not cls.name:
         raise CheckFailed("class attribute 'name' is empty; set name = \"my-method\" (the name used in experiments)")
     if cls.family not in FAMILIES:

@@ -23,10 +23,10 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.pools import RawSegments, SamplePool
-from enginebench.datasets.samples import Samples, make_samples
+from enginebench.datasets.pools import RawSegments, SamplePool, make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.errors import DataError
+from enginebench.samples import Samples
 
 CHECKED_MODES = ("static", "window", "simulation")
 TINY_WINDOW = 2.0

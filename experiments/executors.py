@@ -50,7 +50,7 @@ def _init_worker(blob: bytes, plugins: tuple[str, ...], threads: int, parent: in
         _exit_with_parent(parent)
     _limit_threads(threads)
     if plugins:
-        from enginebench.methods.registry import load_plugin_file
+        from enginebench.registry import load_plugin_file
 
         for path in plugins:
             load_plugin_file(path)
@@ -197,7 +197,7 @@ def _load_shipped_plugins(sources: tuple[tuple[str, str], ...]) -> None:
     """
     import tempfile
 
-    from enginebench.methods.registry import load_plugin_file
+    from enginebench.registry import load_plugin_file
 
     for path, text in sources:
         original = Path(path)

@@ -19,13 +19,13 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.pools import SamplePool
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
-from enginebench.methods.base import Method
+from enginebench.method import Method
 from enginebench.results.metrics import compute_metrics, mean_abs, per_segment
 from enginebench.results.store import SELECTION_META
+from enginebench.samples import Samples
 
 
 JOINT = "(all targets)"

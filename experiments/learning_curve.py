@@ -38,18 +38,18 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from enginebench import registry
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import SpecError
 from enginebench.experiments import environment
-from enginebench.experiments.executors import check_executor
-from enginebench.experiments.jobs import Context, Job, Problem
-from enginebench.experiments.runner import (
+from enginebench.experiments.engine import (
     check_protocol, check_workers, context_units, execute, load_dataset, physical_model_for, plan,
 )
+from enginebench.experiments.executors import check_executor
+from enginebench.experiments.jobs import Context, Job, Problem
 from enginebench.experiments.spec import ExperimentSpec, from_dict
-from enginebench.methods import registry
 from enginebench.results.stats import t_interval
 from enginebench.results.store import Run, RunStore
 

@@ -18,11 +18,11 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.experiments.selection import grid_scores, resample_pairs, select
 from enginebench.experiments.spec import Selection
-from enginebench.methods.base import Method
+from enginebench.method import Method
+from enginebench.samples import Samples
 
 PM_VARIABLE = "PM"
 

@@ -15,13 +15,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from enginebench.datasets.samples import Samples
 from enginebench.datasets.splits import blocked_folds
 from enginebench.errors import MethodError, SpecError
 from enginebench.experiments.extension import MAX_ROUNDS, Extension, extend
 from enginebench.experiments.search import plain, range_positions, range_warnings, search_points
 from enginebench.experiments.spec import Selection
-from enginebench.methods.base import Method, grid_points
+from enginebench.method import Method, grid_points
+from enginebench.samples import Samples
 
 
 def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.ndarray:

@@ -43,11 +43,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from enginebench.datasets.samples import MODES
 from enginebench.declare import (Declaration, Invalid, anything, choice, did_you_mean, flag, is_number, listing, number,
                                  table, text, whole)
 from enginebench.errors import SpecError
 from enginebench.experiments.search import SEARCHES
+from enginebench.samples import MODES
 
 ALL_TARGETS = "all"
 """``targets = "all"`` (a string, not a list): every column of role output. A column named "all"

@@ -46,13 +46,13 @@ import scipy.linalg
 import scipy.signal
 from threadpoolctl import threadpool_limits
 
-from enginebench.datasets.samples import Samples
-from enginebench.errors import MethodError
 from enginebench.declare import Declaration, whole
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
-from enginebench.methods.numerics.lag_gram import LagGram, Orders
+from enginebench.errors import MethodError
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.freerun import (ENVELOPE, Envelope, GivenOrders, Trajectory, check_prediction_inputs,
                                          init_window, orders, padded_past, training_trajectories)
+from enginebench.methods.numerics.lag_gram import LagGram, Orders
+from enginebench.samples import Samples
 
 NAME = "arx"
 DEFAULT_NK = (0, 1)

@@ -30,12 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, number, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, split_rows
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, split_rows
 from enginebench.methods.input_history import HISTORY_OPTIONS, InputHistory
 from enginebench.methods.nfir_memory import MemoryEstimate, horizon_samples
+from enginebench.samples import Samples
 
 NAME = "boost-fir"
 IMPORTANCE_SEED = 0

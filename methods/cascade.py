@@ -45,13 +45,13 @@ from typing import Any, ClassVar, Iterator, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, Invalid, anything, choice, number, table, text
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, grid_points
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, grid_points
 from enginebench.methods.cascade_components import (CascadeFitted, Initialiser, UpstreamFitted, component_class,
                                                     holdout_search, initial_features, intermediate_values,
                                                     segment_mae, target_samples, upstream_signals, with_inputs)
+from enginebench.samples import Samples
 
 __all__ = ["OPTIONS", "SOURCES", "TRAIN_ON", "Cascade", "CascadeFitted", "Initialiser", "MoEIdeal", "MoEMoE",
            "MoENFIR", "SINDyIdeal", "SINDyNFIR", "UpstreamFitted", "component_class", "intermediate_values",

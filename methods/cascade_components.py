@@ -18,14 +18,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params
+from enginebench.method import Method, Params
+from enginebench.samples import Samples
 
 
 def component_class(name: str) -> type[Method]:
     """A cascade component by method name, through the registry (built-ins, plugins, registered classes)."""
-    from enginebench.methods.registry import get
+    from enginebench.registry import get
 
     return get(name)
 

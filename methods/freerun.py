@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples, SegmentSamples
 from enginebench.declare import Field, Invalid, is_number, positive
 from enginebench.errors import MethodError
+from enginebench.samples import Samples, SegmentSamples
 
 if TYPE_CHECKING:
-    from enginebench.methods.base import TrainingShape
+    from enginebench.method import TrainingShape
 
 
 @dataclass(frozen=True)

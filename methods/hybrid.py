@@ -43,14 +43,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
-from enginebench.declare import Invalid, choice, listing
-from enginebench.declare import log_grid as grid
+from enginebench.declare import Invalid, choice, listing, log_grid as grid
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params, SearchSpace, log_grid
+from enginebench.method import Params, SearchSpace, log_grid
 from enginebench.methods.krls import KRLS, KRLSFitted
 from enginebench.methods.mtl_krls import MTLFitted, MTLKRLS
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
+from enginebench.samples import Samples
 
 STRATEGIES = ("shared", "task", "feature", "residual", "residual-feature")
 """The hybrid strategies, in the order ``hybrid`` searches them."""

@@ -16,12 +16,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
 from enginebench.declare import listing, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params, SearchSpace, TrainingShape
+from enginebench.method import Params, SearchSpace, TrainingShape
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
                                              lag_feature_names, lagged_inputs, nfir_lags)
+from enginebench.samples import Samples
 
 HISTORY_OPTIONS = (
     listing("horizons", None, "input windows searched; None = derived from the data's input->output memory "

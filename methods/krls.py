@@ -15,15 +15,14 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 from sklearn.preprocessing import StandardScaler
 
-from enginebench.datasets.samples import Samples
-from enginebench.declare import Declaration, choice, flag, text, whole
-from enginebench.declare import log_grid as grid
+from enginebench.declare import Declaration, choice, flag, log_grid as grid, text, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
+from enginebench.method import Method, Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.numerics.kernels import (check_positive, gaussian, gaussian_apply, make_scaler,
                                          power_of_two_scale, sq_distances, standardize_rows)
 from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import ridge_solutions
+from enginebench.samples import Samples
 
 
 SOLVERS = ("auto", "exact", "falkon")

@@ -47,17 +47,16 @@ from typing import Any, Sequence
 import numpy as np
 from sklearn.preprocessing import StandardScaler
 
-from enginebench.datasets.samples import Samples
-from enginebench.declare import choice, flag
-from enginebench.declare import log_grid as grid
+from enginebench.declare import choice, flag, log_grid as grid
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params, SearchSpace, log_grid, split_rows
+from enginebench.method import Params, SearchSpace, log_grid, split_rows
+from enginebench.methods.krls import KRLS, _check_finite, gamma_kernels
 from enginebench.methods.numerics.kernels import (Spectral, check_positive, gaussian, gaussian_apply, make_scaler, sq_distances,
                                          standardize_rows)
-from enginebench.methods.krls import KRLS, _check_finite, gamma_kernels
-from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
 from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import shifted_solutions
+from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
+from enginebench.samples import Samples
 
 HYPERPARAMETERS = ("gamma", "lambda", "theta")
 

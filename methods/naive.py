@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SegmentPredictions
+from enginebench.method import Method, Params, SegmentPredictions
+from enginebench.samples import Samples
 
 
 class NaiveMean(Method):

@@ -38,13 +38,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, Invalid, anything, choice, is_whole, number, positive, text, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, check_prediction_inputs, init_window,
                                          training_trajectories)
 from enginebench.methods.numerics.device import cpu_threads, resolve_device
+from enginebench.samples import Samples
 
 HORIZON_SAMPLES = 100
 """``horizon = None``: the training subsections' length in samples (at most half the longest fitting part)."""

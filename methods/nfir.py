@@ -47,17 +47,16 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
-from enginebench.declare import whole
-from enginebench.declare import log_grid as grid
+from enginebench.declare import log_grid as grid, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params, SearchSpace, SegmentPredictions, split_rows
-from enginebench.methods.numerics.kernel_grid import kernel_ridge_grid
-from enginebench.methods.numerics.kernels import check_positive, gaussian, sq_distances
+from enginebench.method import Params, SearchSpace, SegmentPredictions, split_rows
 from enginebench.methods.input_history import HISTORY_OPTIONS, InputHistory
 from enginebench.methods.krls import GAMMA_BOUND, LAMBDA_BOUND, KRLS, KRLSFitted
 from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
                                              lag_feature_names, lagged_inputs, memory_ladder, nfir_lags)
+from enginebench.methods.numerics.kernel_grid import kernel_ridge_grid
+from enginebench.methods.numerics.kernels import check_positive, gaussian, sq_distances
+from enginebench.samples import Samples
 
 __all__ = [
     "MemoryEstimate",

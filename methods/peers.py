@@ -46,12 +46,12 @@ from typing import Any, ClassVar, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
-from enginebench.errors import MethodError
 from enginebench.declare import Declaration, choice, whole
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions
+from enginebench.errors import MethodError
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
                                          derived_orders, init_window, orders, padded_past, training_trajectories)
+from enginebench.samples import Samples
 
 INSTALL = 'pip install "enginebench[peers]"'
 INFO_CRITERIA = ("aic", "aicc", "bic", "fpe", "lilc")

@@ -16,9 +16,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SegmentPredictions
+from enginebench.method import Method, Params, SegmentPredictions
+from enginebench.samples import Samples
 
 
 def physical_model(data: Samples) -> Any:

@@ -20,13 +20,12 @@ from typing import Any, Sequence
 import numpy as np
 from sklearn.preprocessing import StandardScaler
 
-from enginebench.datasets.samples import Samples
-from enginebench.declare import Declaration
-from enginebench.declare import log_grid as grid
+from enginebench.declare import Declaration, log_grid as grid
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, log_grid, split_rows
+from enginebench.method import Method, Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.krls import _check_finite
 from enginebench.methods.numerics.kernels import make_scaler, power_of_two_scale, standardize_rows
+from enginebench.samples import Samples
 
 ALPHA_BOUND = (1e-14, 1e8)
 """Hard bounds of a searched penalty, relative to the training rows (the standardised Gram's diagonal): below

@@ -55,15 +55,15 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 import pysindy as ps
 
-from enginebench.datasets.samples import Samples
 from enginebench.declare import Declaration, Field, Invalid, choice, listing, positive, whole
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, Params, SearchSpace, SegmentPredictions, log_grid
+from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.numerics.derivatives import digest
 from enginebench.methods.sindy_grid import library_gram, segment_derivative, simulate_candidates, stlsq_gram
 from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
     DERIVATIVE_KINDS, DERIVATIVE_SOLVERS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
 )
+from enginebench.samples import Samples
 
 DEFAULT_DERIVATIVE_ALPHA = {"trend_filtered": 1e-3, "kalman": 1.0}
 DEFAULT_PARAMS = {"order": 1, "degree": 2, "threshold": 0.1, "alpha": 0.05}

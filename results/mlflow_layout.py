@@ -140,7 +140,7 @@ def _window(w: float) -> str:
 def registry_family(method: str) -> str | None:
     """The family of the registered method class named ``method``, or None when it cannot be imported."""
     try:
-        from enginebench.methods import registry
+        from enginebench import registry
 
         return str(registry.get(method).family)
     except Exception:  # noqa: BLE001 - unknown, broken or unimportable: the run's stored family is used

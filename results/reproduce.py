@@ -93,7 +93,7 @@ _RERUN = """
 import json, sys
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.spec import from_dict
-from enginebench.methods.registry import load_plugin_file
+from enginebench.registry import load_plugin_file
 from enginebench.results.store import RunStore
 args = json.loads(open(sys.argv[1]).read())
 for path in args["plugins"]:
@@ -112,7 +112,7 @@ def rerun(run, perturbation: Perturbation, folder: Path, generated_dataset: bool
     """
     from enginebench.results.store import RunStore
 
-    from enginebench.methods.registry import file_sha256
+    from enginebench.registry import file_sha256
 
     config = run.config()
     plugins = []

@@ -252,7 +252,7 @@ class Run:
 
     def check_plugins(self, doing: str = "resumed") -> None:
         """Refuse (StoreError, one line) when this process's plugin files are not those the run was made with."""
-        from enginebench.methods.registry import plugin_mismatches
+        from enginebench.registry import plugin_mismatches
 
         recorded = self.plugins()
         if recorded is None:

@@ -151,11 +151,11 @@ class RunStore:
         run.json is written last: until it exists the folder is not a run (``runs`` skips
         it), and a failed write removes the folder again. ``plugins`` (path, sha256,
         methods of each plugin file) defaults to the plugin files this process loaded for
-        the config's methods (``methods.registry.plugin_records``). ``tags`` (KEY -> VALUE,
+        the config's methods (``enginebench.registry.plugin_records``). ``tags`` (KEY -> VALUE,
         checked by ``results.catalog.check_tags``) label the run; they are not part of the config.
         """
         if plugins is None:
-            from enginebench.methods.registry import plugin_records
+            from enginebench.registry import plugin_records
 
             plugins = plugin_records(methods_used(config))
         created_ns = time.time_ns()

@@ -9,9 +9,10 @@ import pandas as pd
 import scipy.signal
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.samples import RawSegments, SamplePool, Samples, make_samples
+from enginebench.datasets.pools import RawSegments, SamplePool, make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.experiments.spec import ExperimentSpec, from_dict
+from enginebench.samples import Samples
 
 
 def make_toy(n_segments: int = 4, n: int = 120, seed: int = 0, dt: float = 1.0) -> Dataset:

@@ -7,10 +7,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.moe.fitted import MoEFitted, build_network, standardise_sched, torch_dtype, unstandardise_sched
 from enginebench.methods.moe.simulation import simulate
+from enginebench.samples import Samples
 
 
 def describe(fitted: MoEFitted) -> dict[str, Any]:

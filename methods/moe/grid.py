@@ -25,7 +25,6 @@ import numpy as np
 import torch
 from torch.func import functional_call, vmap
 
-from enginebench.datasets.samples import Samples
 from enginebench.methods.moe.fitted import MoEFitted
 from enginebench.methods.moe.model import MixtureOfExperts, moe_loss
 from enginebench.methods.moe.preprocess import prepare
@@ -33,6 +32,7 @@ from enginebench.methods.moe.training import (
     COMPILE_MIN_STEPS, Run, _train, check_finite_loss, fit_mixture_path, start_run,
 )
 from enginebench.methods.numerics.device import cpu_threads
+from enginebench.samples import Samples
 
 SHUFFLED_COPY_BYTES = 1 << 30
 """Largest per-epoch shuffled copy of the runs' training rows (runs x rows x columns); beyond it each

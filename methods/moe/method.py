@@ -6,14 +6,14 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
-from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
+from enginebench.method import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.moe.explain import describe, gate_weights
 from enginebench.methods.moe.fitted import MoEFitted
+from enginebench.methods.moe.grid import fit_mixture_grid
 from enginebench.methods.moe.options import OPTIONS, resolve_params, search_space
 from enginebench.methods.moe.simulation import simulate
-from enginebench.methods.moe.grid import fit_mixture_grid
 from enginebench.methods.moe.training import fit_mixture
+from enginebench.samples import Samples
 
 
 class MoE(Method):

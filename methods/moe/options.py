@@ -23,7 +23,7 @@ import numpy as np
 from enginebench.declare import (Declaration, Invalid, anything, choice, flag, is_number, is_whole, listing, number,
                                  positive, table, text, whole)
 from enginebench.errors import MethodError
-from enginebench.methods.base import Params
+from enginebench.method import Params
 from enginebench.methods.numerics.derivatives import SOLVERS as DERIVATIVE_SOLVERS
 from enginebench.methods.numerics.device import resolve_device
 

@@ -9,10 +9,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.signal import savgol_filter
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.moe.options import DERIVATIVE_WINDOW_SAMPLES, SIGN_WORDS, window_steps
 from enginebench.methods.numerics.derivatives import segment_derivatives
+from enginebench.samples import Samples
 
 
 @dataclass

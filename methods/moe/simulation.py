@@ -16,13 +16,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.moe.fitted import MoEFitted, build_network, torch_dtype
 from enginebench.methods.moe.model import MixtureOfExperts
 from enginebench.methods.moe.preprocess import augment, correction_factors
 from enginebench.methods.numerics.device import cpu_threads, resolve_device
 from enginebench.methods.numerics.integrate import hold_after_exit, integrate
+from enginebench.samples import Samples
 
 
 def simulate(

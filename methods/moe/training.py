@@ -9,7 +9,6 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import torch
 
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
 from enginebench.methods.moe.fitted import MoEFitted, torch_dtype
 from enginebench.methods.moe.model import MixtureOfExperts, moe_loss
@@ -18,6 +17,7 @@ from enginebench.methods.moe.preprocess import Prepared, margin_matrix, prepare
 from enginebench.methods.moe.simulation import _Sim
 from enginebench.methods.moe.warmstart import lstsq_coefficients, warm_start
 from enginebench.methods.numerics.device import cpu_threads, resolve_device
+from enginebench.samples import Samples
 
 
 def fit_mixture(

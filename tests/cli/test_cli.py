@@ -92,7 +92,7 @@ def test_plugin_file_adds_a_method(runner, tmp_path):
     plugin = tmp_path / "my_plugin.py"
     plugin.write_text('''
 import numpy as np
-from enginebench.methods.base import Method
+from enginebench.method import Method
 
 class Median(Method):
     """Training median of the target."""
@@ -140,7 +140,7 @@ def test_runs_show_and_rm(runner, tmp_path, toy_parquet):
 NOISY_PLUGIN = '''
 import warnings
 import numpy as np
-from enginebench.methods.base import Method
+from enginebench.method import Method
 
 class Warner(Method):
     """Training mean, with a warning."""

@@ -62,7 +62,7 @@ def test_a_plugin_without_a_docstring_shows_its_summary_not_the_base_classs_docs
     plugin = tmp_path / "bare_plugin.py"
     plugin.write_text('''
 import numpy as np
-from enginebench.methods.base import Method
+from enginebench.method import Method
 
 class Bare(Method):
     name = "bare-median"
@@ -84,7 +84,7 @@ PAPER_BY_SEED = re.compile(r"seed ?0\d\d", re.IGNORECASE)
 
 
 def test_methods_list_and_show_name_papers_by_their_stable_names():
-    from enginebench.methods.registry import available
+    from enginebench.registry import available
 
     listed = CliRunner().invoke(cli, ["methods", "list"])
     assert listed.exit_code == 0 and not PAPER_BY_SEED.search(listed.output), listed.output

@@ -27,7 +27,7 @@ def test_the_wheel_puts_everything_under_enginebench(tmp_path):
     tops = {PurePosixPath(n).parts[0] for n in names if not PurePosixPath(n).parts[0].endswith(".dist-info")}
     assert tops == {"enginebench"}, sorted(tops)
     assert not tops & FORBIDDEN_TOP_LEVEL
-    assert "enginebench/datasets/samples.py" in names and "enginebench/cli/main.py" in names
+    assert "enginebench/enginebench/samples.py" in names and "enginebench/cli/main.py" in names
     for data in ("experiments/builtin/gas-turbine-nox.toml", "results/published/gas-turbine-nox-quick.json",
                  "results/published/literature-turboshaft-moe.csv", "datasets/marine_diesel/fat_seed000.csv"):
         assert f"enginebench/{data}" in names, data

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from enginebench.datasets.samples import RawSegments, SamplePool, make_samples
+from enginebench.datasets.pools import RawSegments, SamplePool, make_samples
 from enginebench.errors import DataError
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.splits import blocked_folds, groups, holdout, make_splits, published, rolling
 from enginebench.errors import DataError, SpecError
 from enginebench.methods.krls import KRLS

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from enginebench import registry
 from enginebench.experiments.spec import builtin_names, load_spec
-from enginebench.methods import registry
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
 

@@ -110,7 +110,7 @@ def test_without_a_scheduler_a_local_cluster_of_jobs_workers_is_started(dataset,
 
 PLUGIN = '''
 import numpy as np
-from enginebench.methods.base import Method
+from enginebench.method import Method
 
 class Median(Method):
     """Training median of the target (a plugin class the workers only know from this file)."""
@@ -152,7 +152,7 @@ def test_shipped_plugin_copy_is_used_where_the_file_is_missing(tmp_path, monkeyp
     executors._load_shipped_plugins(((str(missing), PLUGIN.replace("dask-median", "shipped-median")),))
     module = sys.modules["enginebench_plugin_gone_plugin"]
     assert module.Median.name == "shipped-median" and not missing.exists()
-    from enginebench.methods import registry
+    from enginebench import registry
 
     assert registry.get("shipped-median") is module.Median
     monkeypatch.delitem(registry._extra, "shipped-median")

@@ -22,14 +22,14 @@ import pytest
 
 from enginebench.datasets.dataset import SEGMENT, Dataset
 from enginebench.datasets.io import write_dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.errors import EngineBenchError
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.spec import from_dict
-from enginebench.methods.base import Method, SegmentPredictions
+from enginebench.method import Method, SegmentPredictions
 from enginebench.methods.krls import KRLS
 from enginebench.methods.mtl_krls import MTLKRLS
-from enginebench.methods.registry import register
+from enginebench.registry import register
 from enginebench.results.metrics import compute_metrics, mape
 from enginebench.results.store import RunStore
 from enginebench.results.tables import summarize, to_csv, to_markdown

@@ -5,14 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.declare import Declaration, log_grid
 from enginebench.errors import MethodError
 from enginebench.experiments.extension import Axis, axes, extend
 from enginebench.experiments.selection import WARNED_EDGES, select
 from enginebench.experiments.spec import Selection
-from enginebench.methods.base import Method
-from enginebench.methods.base import log_grid as grid_values
+from enginebench.method import Method, log_grid as grid_values
 from enginebench.methods.krls import KRLS
 
 

@@ -17,8 +17,8 @@ from enginebench.errors import DataError, SpecError
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.selection import edge_warnings, record_blocks
 from enginebench.experiments.spec import from_dict
-from enginebench.methods.base import Method, SegmentPredictions
-from enginebench.methods.registry import register
+from enginebench.method import Method, SegmentPredictions
+from enginebench.registry import register
 from enginebench.results.store import RunStore
 
 SEEN: list[dict] = []
@@ -328,7 +328,7 @@ c_grid = [-2.0, -1.0, 0.0]
 
 def test_a_boolean_is_not_a_grid_bound():
     from enginebench.errors import MethodError
-    from enginebench.methods.base import check_log_grid_option
+    from enginebench.method import check_log_grid_option
 
     with pytest.raises(MethodError, match=r"option gamma_grid=\(-1, True, 3\) must be \(low exponent, high exponent"):
         check_log_grid_option("krls", "gamma_grid", (-1, True, 3))

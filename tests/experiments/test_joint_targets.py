@@ -89,7 +89,7 @@ def test_joint_selection_weighs_each_target_by_its_scale():
 
 
 def test_the_trajectory_figures_draw_each_target_from_the_joint_job(joint_run):
-    from enginebench.experiments.plots_run import simulate_run
+    from enginebench.reports.trajectories import simulate_run
 
     sims, notes = simulate_run(joint_run, trajectories=1)
     assert not notes

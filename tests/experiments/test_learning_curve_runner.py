@@ -10,8 +10,9 @@ from helpers import toy_spec
 
 from enginebench.cli.main import cli
 from enginebench.errors import StoreError
+from enginebench.experiments.engine import plan
 from enginebench.experiments.learning_curve import PLOT_FILE, SUMMARY_FILE, prepare_curve, run_learning_curve, summarize_curve
-from enginebench.experiments.runner import plan, run_experiment
+from enginebench.experiments.runner import run_experiment
 from enginebench.results.store import RunStore
 
 MONTHS = [0.00005, 0.001]  # ~131 s and ~2630 s of the toy's time axis: its first segment, then every training row

@@ -17,10 +17,11 @@ from enginebench.datasets.marine_diesel.calibration import seed_fat_params, simu
 from enginebench.datasets.marine_diesel.pm import MarineDieselPM, simulate_frame
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import DataError, SpecError
+from enginebench.experiments.engine import physical_model_for
 from enginebench.experiments.learning_curve import (
     MONTH_S, first_months, parse_months, prepare_curve, run_learning_curve, summarize_curve,
 )
-from enginebench.experiments.runner import physical_model_for, prepare, run_experiment
+from enginebench.experiments.runner import prepare, run_experiment
 from enginebench.experiments.spec import load_spec
 from enginebench.results.store import RunStore
 

@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from enginebench.experiments.runner import plan, prepare, run_experiment
+from enginebench.experiments.engine import plan
+from enginebench.experiments.runner import prepare, run_experiment
 from enginebench.experiments.spec import from_dict, load_spec
 from enginebench.results.store import RunStore
 from helpers import interrupt_after, toy_spec
@@ -57,23 +58,23 @@ def test_workers_share_spilled_raw_data_and_agree_with_serial(toy_parquet, tmp_p
     """Raw arrays spilled to a memory-mapped file (as at full size) give the serial run's metrics."""
     import pickle
 
-    from enginebench.experiments import runner
+    from enginebench.experiments import engine
 
     spec = toy_spec(toy_parquet, repetitions=2, mode="window", windows=[0, 2])
     ctx = prepare(spec)
     before = len(pickle.dumps(ctx))
-    runner.spill_problems(ctx, tmp_path, min_bytes=0)
+    engine.spill_problems(ctx, tmp_path, min_bytes=0)
     pools = [p for prob in ctx.problems.values() for p in (prob.train, *prob.parts.values())]
     assert all(p.raw.spill_file for p in pools)
     assert len({id(p.raw) for p in pools}) == 2  # one shared copy per split part (train, test), not per window
     assert len(pickle.dumps(ctx)) < before / 5  # workers receive file names, not data
-    monkeypatch.setattr(runner, "SPILL_MIN_BYTES", 0)
+    monkeypatch.setattr(engine, "SPILL_MIN_BYTES", 0)
     scratch = tmp_path / "scratch"
     scratch.mkdir()
-    monkeypatch.setattr(runner.tempfile, "tempdir", str(scratch))
+    monkeypatch.setattr(engine.tempfile, "tempdir", str(scratch))
     spills = []
-    real_spill = runner.spill_problems
-    monkeypatch.setattr(runner, "spill_problems", lambda c, d, min_bytes=None: (spills.append(d), real_spill(c, d, min_bytes)))
+    real_spill = engine.spill_problems
+    monkeypatch.setattr(engine, "spill_problems", lambda c, d, min_bytes=None: (spills.append(d), real_spill(c, d, min_bytes)))
     store = RunStore(tmp_path / "runs")
     serial = run_experiment(spec, store, workers=1).run.metrics()
     pooled = run_experiment(spec, store, workers=2).run.metrics()
@@ -131,8 +132,8 @@ class Exploding:
 
 
 def test_failed_jobs_are_counted_not_averaged(toy_parquet, tmp_path):
-    from enginebench.methods.base import Method
-    from enginebench.methods.registry import register
+    from enginebench.method import Method
+    from enginebench.registry import register
 
     @register
     class NaNMethod(Method):

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.errors import SpecError
 from enginebench.experiments.search import (BAYES_BATCH, Range, check_search, infer_range, random_points, ranges,
                                             search_points)
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import Selection, from_dict, load_spec
-from enginebench.methods.base import Method, grid_points
+from enginebench.method import Method, grid_points
 from helpers import make_toy, toy_spec
 
 HAS_OPTUNA = importlib.util.find_spec("optuna") is not None

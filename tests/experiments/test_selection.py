@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.errors import MethodError
 from enginebench.experiments.jobs import subsample, subsample_segments
 from enginebench.experiments.selection import grid_scores, resample_pairs, select
@@ -46,7 +46,7 @@ def test_validation_scheme_scores_on_the_validation_part(toy):
     val = make_samples(toy.select_segments(["s2"]), ["y"])
     method = KRLS(gamma_grid=(-2, 0, 3), lambda_grid=(-3, -1, 3))
     params, record = select(method, train, Selection(kind="validation"), np.random.default_rng(0), val)
-    from enginebench.methods.base import grid_points
+    from enginebench.method import grid_points
 
     grid = grid_points(method.search_space(train))
     scores = grid_scores(method.predict_grid(train, val.without_targets(), grid, np.random.default_rng(0)), val, "mae")
@@ -68,7 +68,7 @@ def test_rmae_criterion_averages_segments(toy):
 # ----------------------------------------------------------------------------- the selection table
 def test_the_selection_table_equals_a_refit_of_every_point_on_every_resample(toy):
     """Each stored score is the MAE of that point fitted on that resample's rows alone (fit + predict, not predict_grid)."""
-    from enginebench.methods.base import grid_points
+    from enginebench.method import grid_points
 
     train = make_samples(toy.select_segments(["s0", "s1", "s2"]), ["y"]).take(np.arange(0, 360, 3))
     method = KRLS(gamma_grid=(-2, 0, 3), lambda_grid=(-3, -1, 3))
@@ -149,7 +149,7 @@ def test_the_record_names_the_option_that_sets_each_grid(toy):
 
 def _noisy_mean_method():
     """A stochastic toy method: the training mean plus a random offset scaled by ``s`` (each fit draws anew)."""
-    from enginebench.methods.base import Method
+    from enginebench.method import Method
 
     class Noisy(Method):
         name, family, modes = "noisy", "baseline", frozenset({"static", "window", "simulation"})

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 
 from enginebench.cli.main import cli
 from enginebench.datasets.io import write_dataset
-from enginebench.methods.base import TrainingShape
+from enginebench.method import TrainingShape
 from enginebench.methods.freerun import carried_lags
 from helpers import make_toy
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 import enginebench.api as api
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import Method, SegmentPredictions
+from enginebench.method import Method, SegmentPredictions
+from enginebench.samples import Samples
 from enginebench.testing import check_method
 
 ROOT = Path(__file__).resolve().parents[2]

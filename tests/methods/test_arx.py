@@ -10,8 +10,8 @@ import pytest
 import scipy.signal
 
 from enginebench.errors import MethodError
+from enginebench.method import SegmentPredictions, grid_points
 from enginebench.methods.arx import ARX, ARXFit, simulate
-from enginebench.methods.base import SegmentPredictions, grid_points
 from enginebench.methods.freerun import Envelope
 from helpers import A_TRUE, B1_TRUE, B2_TRUE, OFFSET, linear_raw, sim_samples
 

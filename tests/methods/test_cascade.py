@@ -8,12 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from enginebench import registry
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
-from enginebench.methods import registry
-from enginebench.methods.base import grid_points
+from enginebench.method import grid_points
 from enginebench.methods.cascade import (
     Cascade, Initialiser, MoEIdeal, MoEMoE, MoENFIR, SINDyIdeal, SINDyNFIR, target_samples, with_inputs,
 )

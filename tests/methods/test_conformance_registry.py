@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
-from enginebench.methods import registry
-from enginebench.methods.base import Method
+from enginebench import registry
+from enginebench.method import Method
 from enginebench.methods.cascade import Cascade
 from enginebench.testing import CHECKS, check_method
 from enginebench.testing_data import CHECKED_MODES

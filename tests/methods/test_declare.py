@@ -11,8 +11,8 @@ from enginebench.cli.main import cli
 from enginebench.declare import (Declaration, Field, Invalid, anything, choice, flag, listing, log_grid, number,
                                  positive, table, text, whole)
 from enginebench.errors import MethodError, SpecError
-from enginebench.methods.base import Method
-from enginebench.methods.registry import available
+from enginebench.method import Method
+from enginebench.registry import available
 
 D = Declaration(
     flag("standardize", True, "scale the features"),

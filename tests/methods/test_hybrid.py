@@ -7,12 +7,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from enginebench import registry
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.errors import MethodError
-from enginebench.methods import registry
-from enginebench.methods.base import grid_points
+from enginebench.method import grid_points
 from enginebench.methods.hybrid import (
     STRATEGIES, Hybrid, KRLSPM, MTLDistanceKRLS, MTLTaskKRLS, ResidualKRLS, ResidualKRLSPM, strategy_label,
 )

@@ -12,12 +12,12 @@ from sklearn.kernel_ridge import KernelRidge
 from sklearn.preprocessing import StandardScaler
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
-from enginebench.methods.base import grid_points
-from enginebench.methods.numerics.kernels import Spectral, gaussian, sq_distances
+from enginebench.method import grid_points
 from enginebench.methods.krls import KRLS
+from enginebench.methods.numerics.kernels import Spectral, gaussian, sq_distances
 
 RNG = np.random.default_rng(0)
 
@@ -299,7 +299,7 @@ def _smooth_problem(n: int, seed: int = 0):
     import pandas as pd
 
     from enginebench.datasets.dataset import Dataset
-    from enginebench.datasets.samples import make_samples
+    from enginebench.datasets.pools import make_samples
     from enginebench.datasets.schema import Column, Schema
 
     rng = np.random.default_rng(seed)
@@ -443,7 +443,7 @@ def test_householder_falls_back_to_the_clipped_spectrum_when_rounding_makes_k_in
 
 def test_grid_matches_kernel_ridge_per_blocked_fold() -> None:
     """predict_grid over a wide 9 x 9 grid equals sklearn's KernelRidge (centred target) on each blocked fold."""
-    from enginebench.datasets.samples import Samples, SegmentSamples
+    from enginebench.samples import Samples, SegmentSamples
 
     X, y = _drift_problem(250, 4, 11)
     names = tuple(f"x{j}" for j in range(X.shape[1]))

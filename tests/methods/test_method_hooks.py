@@ -14,14 +14,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from enginebench import registry
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
-from enginebench.experiments.plots_run import weights_of
-from enginebench.methods import registry
-from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, SegmentPredictions
+from enginebench.method import EXPLAIN_WEIGHTS, Method, SegmentPredictions
 from enginebench.methods.cascade import Cascade
+from enginebench.reports.trajectories import weights_of
 from enginebench.results import tables
 
 ROOT = Path(__file__).resolve().parents[2]

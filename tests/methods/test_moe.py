@@ -23,13 +23,13 @@ from derivative import TrendFiltered
 from scipy.integrate import solve_ivp
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError, MethodError
-from enginebench.methods.numerics.derivatives import tv_derivative, tv_differentiate, window_bounds
-from enginebench.methods.numerics.tv_admm import objective
 from enginebench.methods.moe import MoE, frozen_stability, gate_weights, local_coefficients, simulate
 from enginebench.methods.moe.model import moe_loss, signed_softplus
+from enginebench.methods.numerics.derivatives import tv_derivative, tv_differentiate, window_bounds
+from enginebench.methods.numerics.tv_admm import objective
 
 DT = 0.05
 REGIMES = {"low": (-1.0, 2.0), "high": (-3.0, 0.5)}  # v < 0, v > 0

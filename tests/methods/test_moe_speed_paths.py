@@ -12,10 +12,9 @@ import pytest
 import torch
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
-from enginebench.methods.moe import MoE, affine_prefix_scan, resolve_params
-from enginebench.methods.moe import training as tr
+from enginebench.methods.moe import MoE, affine_prefix_scan, resolve_params, training as tr
 from enginebench.methods.moe.model import MixtureOfExperts
 from enginebench.methods.moe.preprocess import prepare
 from enginebench.methods.moe.simulation import _Sim

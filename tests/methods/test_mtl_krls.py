@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import grid_points
-from enginebench.methods.numerics.kernels import Spectral
+from enginebench.method import grid_points
 from enginebench.methods.mtl_krls import MTLKRLS, mtl_coefficients, shared_poles
+from enginebench.methods.numerics.kernels import Spectral
 from enginebench.methods.numerics.shifted import shifted_solutions
 
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from enginebench.datasets.samples import Samples, SegmentSamples
+from enginebench import registry
 from enginebench.errors import MethodError
-from enginebench.methods import registry
 from enginebench.methods.gru import GRU
 from enginebench.methods.neural_ss import NeuralSS
+from enginebench.samples import Samples, SegmentSamples
 
 torch.set_num_threads(1)
 

@@ -11,10 +11,10 @@ from sklearn.kernel_ridge import KernelRidge
 from sklearn.preprocessing import StandardScaler
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
-from enginebench.methods.base import SegmentPredictions, grid_points
+from enginebench.method import SegmentPredictions, grid_points
 from enginebench.methods.nfir import (
     NFIR, bounded_stride, estimate_memory, lag_feature_names, lagged_inputs, memory_ladder, nfir_lags,
 )

@@ -17,13 +17,13 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from enginebench import registry
 from enginebench.cli.main import cli
-from enginebench.methods import registry
 from enginebench.results.store import RunStore
 
 MEDIAN = '''
 import numpy as np
-from enginebench.methods.base import Method
+from enginebench.method import Method
 
 class Median(Method):
     """Training median of the target."""

@@ -13,11 +13,11 @@ import pytest
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.io import write_dataset
-from enginebench.datasets.samples import RawSegments, SamplePool
+from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.schema import Column, Schema
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.spec import from_dict
-from enginebench.methods.registry import load_plugin_file
+from enginebench.registry import load_plugin_file
 from enginebench.results.store import RunStore
 from enginebench.testing import check_method
 

@@ -9,13 +9,13 @@ from sklearn.linear_model import Ridge as SkRidge
 from sklearn.preprocessing import StandardScaler
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import Selection
-from enginebench.methods.registry import get
 from enginebench.methods.ridge import ALPHA_BOUND, Ridge
+from enginebench.registry import get
 
 RNG = np.random.default_rng(0)
 

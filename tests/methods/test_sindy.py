@@ -16,12 +16,13 @@ from scipy.integrate import solve_ivp
 from sklearn.preprocessing import PolynomialFeatures
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import Samples, make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
-from enginebench.methods.base import SegmentPredictions, grid_points
+from enginebench.method import SegmentPredictions, grid_points
 from enginebench.methods.numerics.derivatives import window_bounds
 from enginebench.methods.sindy import SINDy, differentiate, library_features, raw_coefficients, simulate_batch
+from enginebench.samples import Samples
 
 DT = 0.1
 

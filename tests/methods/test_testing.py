@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from enginebench.datasets.samples import Samples
+from enginebench import registry
 from enginebench.errors import DataError, MethodError
-from enginebench.methods import registry
-from enginebench.methods.base import Method, SegmentPredictions
+from enginebench.method import Method, SegmentPredictions
+from enginebench.samples import Samples
 from enginebench.testing import CHECKS, TINY_INIT, ConformanceError, check_method, tiny_samples
 
 # every registered method, in each of its modes: test_conformance_registry.py
@@ -195,7 +195,7 @@ def test_simulating_methods_must_return_segment_predictions_with_bool_flags():
     failures = failures_of(PlainList)
     assert failures["shapes"] == [
         "[shapes] method 'test-plain-list' (simulation mode): predict returned list, not SegmentPredictions; a "
-        "simulating method returns SegmentPredictions(arrays, diverged=flags) (enginebench.methods.base), one flag "
+        "simulating method returns SegmentPredictions(arrays, diverged=flags) (enginebench.method), one flag "
         "per segment"]
     failures = failures_of(BadFlags)
     assert "returned diverged flags of dtype float64 and shape (2,); expected one bool per segment, shape (2,)" \

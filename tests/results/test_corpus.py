@@ -33,8 +33,8 @@ import pytest
 import tomli_w
 from click.testing import CliRunner
 
+from enginebench import registry
 from enginebench.cli.main import cli
-from enginebench.methods import registry
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MALFORMED = DATA / "malformed"
@@ -423,7 +423,7 @@ case("baseline-is-folder", ["guard", "latest", "-b", "{case}"], "baseline")
 
 # -- plugin files -----------------------------------------------------------------------------------------------
 _METHOD = '''
-from enginebench.methods.base import Method
+from enginebench.method import Method
 
 class M(Method):
     name = "{name}"

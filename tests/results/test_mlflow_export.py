@@ -19,8 +19,8 @@ import pytest
 from click.testing import CliRunner
 
 from enginebench.cli.main import cli
-from enginebench.methods.base import Method
-from enginebench.methods.registry import register
+from enginebench.method import Method
+from enginebench.registry import register
 from enginebench.results import tables
 from enginebench.results.mlflow_export import (build_layout, flatten, key_part, mlflow_key, most_frequent_picks,
                                                resolve_uri, sanitize_key)
@@ -260,7 +260,7 @@ def test_reexport_is_refused_then_replaced_with_the_report(run, tmp_path, file_s
     again = CliRunner().invoke(cli, args)
     assert again.exit_code == 2 and again.output.strip().splitlines() == refused
     with monkeypatch.context() as m:  # with --report: refused before the report is built
-        import enginebench.experiments.report as report_module
+        import enginebench.reports.static as report_module
 
         m.setattr(report_module, "write_report", lambda *a, **k: pytest.fail("report built before the refusal"))
         again = CliRunner().invoke(cli, args + ["--report", "--no-figures"])

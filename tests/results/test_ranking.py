@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.samples import make_samples
+from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.experiments.ranking import rank_features
 from enginebench.experiments.spec import Selection

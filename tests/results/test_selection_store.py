@@ -188,8 +188,8 @@ def test_runs_show_and_both_reports_carry_the_grid_edge_note(narrow_run, tmp_pat
     """One list of notes under every view of a run (``results.notes.run_note_lines``), the grid-edge note included."""
     import html
 
-    from enginebench.experiments.interactive_report import plotly_available, write_interactive_report
-    from enginebench.experiments.report import write_report
+    from enginebench.reports.interactive import plotly_available, write_interactive_report
+    from enginebench.reports.static import write_report
 
     line = "grid edge: krls: gamma at the upper edge of its grid (0.001) in 3 of 3 repetitions: widen gamma_grid"
     shown = CliRunner().invoke(cli, ["runs", "show", narrow_run.id, "--store", str(narrow_run.store)])

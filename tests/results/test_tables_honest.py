@@ -19,8 +19,8 @@ from enginebench.cli.main import cli
 from enginebench.cli.table import paired_lines
 from enginebench.datasets.io import write_dataset
 from enginebench.experiments.runner import run_experiment
-from enginebench.methods.base import Method, SegmentPredictions
-from enginebench.methods.registry import register
+from enginebench.method import Method, SegmentPredictions
+from enginebench.registry import register
 from enginebench.results import tables
 from enginebench.results.compare import compare_metrics
 from enginebench.results.stats import holm

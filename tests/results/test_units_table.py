@@ -20,10 +20,10 @@ from enginebench.datasets.dataset import Dataset
 from enginebench.datasets.io import write_dataset
 from enginebench.datasets.schema import Column, Schema
 from enginebench.experiments.runner import run_experiment
-from enginebench.methods.base import Method, SegmentPredictions
-from enginebench.methods.registry import register
+from enginebench.method import Method, SegmentPredictions
+from enginebench.registry import register
+from enginebench.reports.plots import scatter_figure, trajectory_figure
 from enginebench.results import tables
-from enginebench.results.plots import scatter_figure, trajectory_figure
 from enginebench.results.store import RunStore
 from enginebench.results.units import WINDOW, axis_label, header, metric_unit, run_units
 from helpers import make_toy, toy_spec
@@ -197,7 +197,7 @@ def test_figure_axes_carry_units_and_normalised_axes_say_so():
 
 
 def test_plot_run_labels_read_the_units_the_run_recorded(long_run, tmp_path, monkeypatch):
-    from enginebench.experiments import plots_run
+    from enginebench.reports import trajectories
 
     run = long_run
     figures = []
@@ -210,9 +210,9 @@ def test_plot_run_labels_read_the_units_the_run_recorded(long_run, tmp_path, mon
             return path
         return draw
 
-    monkeypatch.setattr(plots_run, "trajectory_plot", keep(trajectory_figure))
-    monkeypatch.setattr(plots_run, "scatter_plot", keep(scatter_figure))
-    plots_run.plot_run(run, tmp_path / "fig", trajectories=1)
+    monkeypatch.setattr(trajectories, "trajectory_plot", keep(trajectory_figure))
+    monkeypatch.setattr(trajectories, "scatter_plot", keep(scatter_figure))
+    trajectories.plot_run(run, tmp_path / "fig", trajectories=1)
     labels = {ax.get_ylabel() for fig in figures for ax in fig.axes} | {ax.get_xlabel() for fig in figures for ax in fig.axes}
     assert f"{LONG_TARGET}\nnormalised [-]: divided by its\ntraining mean |y| = " in "\n".join(labels)
     assert f"measured {LONG_TARGET} [degC]" in labels and f"predicted {LONG_TARGET} [degC]" in labels

@@ -126,7 +126,7 @@ def _top(page: str) -> str:
 def test_the_static_report_opens_on_the_verdict(run, tmp_path):
     import html
 
-    from enginebench.experiments.report import write_report
+    from enginebench.reports.static import write_report
 
     result = write_report(run, tmp_path / "rep", figures=False)
     page = result.index.read_text()
@@ -140,7 +140,7 @@ def test_the_interactive_report_opens_on_the_verdict(run, tmp_path):
     import html
 
     pytest.importorskip("plotly", reason="plotly is the optional extra 'report'")
-    from enginebench.experiments.interactive_report import write_interactive_report
+    from enginebench.reports.interactive import write_interactive_report
 
     result = write_interactive_report(run, Path(tmp_path) / "report.html", figures=False)
     page = result.path.read_text()

@@ -5,9 +5,9 @@ table sortable by clicking its headers, failed jobs with their reasons, zoomable
 series of the evaluated part (one toggleable trace per method, diverged trajectories
 dashed, mixing weights as stacked bands underneath), measured vs predicted scatters,
 each metric per repetition, and the validation curves of model selection. The
-predictions come from the same re-fit as the static report (``report_refit.refit_predictions``
-for static/window runs, ``plots_run.simulate_run`` for simulation runs); ``write_reports``
-writes both pages from one re-fit. Figures are built by ``results.interactive``.
+predictions come from the same re-fit as the static report (``refit.refit_predictions``
+for static/window runs, ``trajectories.simulate_run`` for simulation runs); ``write_reports``
+writes both pages from one re-fit. Figures are built by ``reports.interactive_figures``.
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import EngineBenchError
-from enginebench.experiments.report import (REPORT_FILE, ReportResult, ReportSettings, _synthetic, is_learning_curve,
-                                            run_verdicts, verdict_html, write_report)
-from enginebench.experiments.report_figures import _time_axis
-from enginebench.experiments.report_refit import Predictions, refit_predictions
+from enginebench.reports.refit import Predictions, refit_predictions
+from enginebench.reports.static import (
+    REPORT_FILE, ReportResult, ReportSettings, _synthetic, is_learning_curve, run_verdicts, verdict_html, write_report,
+)
+from enginebench.reports.static_figures import _time_axis
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run
@@ -67,7 +68,7 @@ class _Page:
     titles: list[str] = field(default_factory=list)
 
     def figure(self, fig, caption: str) -> str:
-        from enginebench.results.interactive import figure_html
+        from enginebench.reports.interactive_figures import figure_html
 
         self.titles.append(caption)
         return (f"<figure>{figure_html(fig, f'figure-{len(self.titles)}')}"
@@ -105,7 +106,8 @@ def _series(predictions: Sequence[Predictions], simulated: Sequence[Any]) -> lis
 
 
 def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[str, str], max_points: int) -> None:
-    from enginebench.results.interactive import axis_label, scatter_figure, time_series_figure
+    from enginebench.reports.interactive_figures import scatter_figure, time_series_figure
+    from enginebench.results.units import axis_label
 
     trends, scatters = [], []
     for s in series:
@@ -133,7 +135,7 @@ def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[
 
 def _importance_section(page: _Page, run: Run, units: dict[str, str]) -> None:
     """Input importances of the methods whose ``describe`` gives ``importance.targets[T].by_input`` (first repetition)."""
-    from enginebench.results.interactive import importance_figure
+    from enginebench.reports.interactive_figures import importance_figure
 
     found: dict[str, dict[str, dict[str, float]]] = {}
     for meta in run.job_metas().values():
@@ -152,8 +154,8 @@ def _importance_section(page: _Page, run: Run, units: dict[str, str]) -> None:
 
 def _map_section(page: _Page, simulated: Sequence[Any], units: dict[str, str]) -> None:
     """Each simulated target's free-run RMSE over the operating map of the first two run-time inputs."""
-    from enginebench.results.interactive import operating_map_figure
-    from enginebench.results.operating_map import operating_map
+    from enginebench.reports.interactive_figures import operating_map_figure
+    from enginebench.reports.operating_map import operating_map
 
     figures = []
     for sim in simulated:
@@ -173,7 +175,8 @@ def _map_section(page: _Page, simulated: Sequence[Any], units: dict[str, str]) -
 
 
 def _table_section(page: _Page, summary: pd.DataFrame, metrics: Sequence[str], units: dict[str, str]) -> None:
-    from enginebench.results.interactive import header, sortable_table
+    from enginebench.reports.interactive_figures import sortable_table
+    from enginebench.results.units import header
     from enginebench.results.units import window_header
 
     cells, bold = tables.wide(summary, metrics)
@@ -191,7 +194,8 @@ def _table_section(page: _Page, summary: pd.DataFrame, metrics: Sequence[str], u
 
 
 def _strip_section(page: _Page, raw: pd.DataFrame, metrics: Sequence[str], units: dict[str, str]) -> None:
-    from enginebench.results.interactive import header, strip_figure
+    from enginebench.reports.interactive_figures import strip_figure
+    from enginebench.results.units import header
 
     ok = raw[raw["status"] == "ok"] if "status" in raw else raw
     ok = ok.assign(block=[f"{t}, window {w:g} s, {s}" for t, w, s in zip(ok["target"], ok["window"], ok["split"])])
@@ -211,7 +215,7 @@ def _strip_section(page: _Page, raw: pd.DataFrame, metrics: Sequence[str], units
 
 def _validation_section(page: _Page, run: Run) -> str | None:
     """Validation curves from ``Run.selection_table()``; a note instead where the run has none."""
-    from enginebench.results.interactive import validation_figure
+    from enginebench.reports.interactive_figures import validation_figure
 
     if not hasattr(run, "selection_table"):
         return "validation curves: this version of the run store does not read model-selection scores"
@@ -245,7 +249,7 @@ ul.verdict li { font-size: 1.05em; margin: 0.2em 0; }
 
 
 def _html(run: Run, page: _Page, failures: list[str], notes: list[str], verdict: str = "") -> str:
-    from enginebench.results.interactive import SORT_SCRIPT, plotly_script
+    from enginebench.reports.interactive_figures import SORT_SCRIPT, plotly_script
 
     cfg, info = run.config(), run.info()
     esc = html.escape
@@ -300,7 +304,7 @@ def write_interactive_report(
     """
     opts = ReportSettings(**settings)
     repetition, part, methods = opts.repetition, opts.part, opts.methods
-    from enginebench.results.interactive import MAX_POINTS
+    from enginebench.reports.interactive_figures import MAX_POINTS
 
     max_points = MAX_POINTS if max_points is None else max_points
     cfg = run.config()
@@ -315,7 +319,7 @@ def write_interactive_report(
         if predictions is None and simulated is None:
             try:
                 if cfg.get("mode") == "simulation":
-                    from enginebench.experiments.plots_run import simulate_run
+                    from enginebench.reports.trajectories import simulate_run
 
                     simulated, more = simulate_run(run, list(methods) if methods else None, opts.trajectories, part,
                                                    repetition)

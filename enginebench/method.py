@@ -8,10 +8,9 @@ from typing import Any, ClassVar, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from enginebench.datasets.samples import Samples
-from enginebench.declare import Declaration, anything
-from enginebench.declare import log_grid as declared_log_grid
+from enginebench.declare import Declaration, anything, log_grid as declared_log_grid
 from enginebench.errors import MethodError
+from enginebench.samples import Samples
 
 FAMILIES = ("physical", "data-driven", "hybrid", "baseline")
 

@@ -15,17 +15,17 @@ import pytest
 from click.testing import CliRunner
 
 from enginebench.cli.main import cli
-from enginebench.datasets.samples import Samples
 from enginebench.errors import MethodError
-from enginebench.methods.base import EXPLAIN_WEIGHTS, Method, Params, SegmentPredictions
+from enginebench.method import EXPLAIN_WEIGHTS, Method, Params, SegmentPredictions
 from enginebench.results.store import RunStore
+from enginebench.samples import Samples
 from helpers import make_toy
 
 plotly = pytest.importorskip("plotly", reason="plotly is the optional extra 'report' (pip install enginebench[report])")
 
-from enginebench.experiments.interactive_report import (  # noqa: E402
+from enginebench.reports import interactive_figures as ia  # noqa: E402
+from enginebench.reports.interactive import (  # noqa: E402
     INSTALL_HINT, run_units, write_interactive_report, write_reports)
-from enginebench.results import interactive as ia  # noqa: E402
 from enginebench.results.units import axis_label  # noqa: E402
 
 FAIL_REASON = "intentional failure of the test method"
@@ -85,7 +85,7 @@ def static_run(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def simulation_run(tmp_path_factory):
-    from enginebench.methods import registry
+    from enginebench import registry
 
     registry.register(GatedMean)
     registry.register(Boom)
@@ -327,7 +327,7 @@ def test_report_command_writes_both_pages_and_says_how_to_get_plotly(static_run,
                               "--no-interactive"])
     assert res.exit_code == 0 and not (tmp_path / "no" / "report.html").exists()
     assert "report.html" not in (tmp_path / "no" / "index.html").read_text()
-    monkeypatch.setattr("enginebench.experiments.interactive_report.plotly_available", lambda: False)
+    monkeypatch.setattr("enginebench.reports.interactive.plotly_available", lambda: False)
     res = runner.invoke(cli, ["report", static_run.id, "-o", str(tmp_path / "bare"), "--store", store, "--no-figures"])
     assert res.exit_code == 0
     assert res.output.strip().splitlines() == [
@@ -414,7 +414,7 @@ def test_clicking_a_header_sorts_the_table_by_value(tmp_path):
 
 
 def test_simulation_page_maps_each_methods_error_over_the_first_two_inputs(simulation_pages):
-    from enginebench.results.operating_map import operating_map
+    from enginebench.reports.operating_map import operating_map
 
     _, (static, page, _notes) = simulation_pages
     text = page.path.read_text()

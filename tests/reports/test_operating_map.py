@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from enginebench.results.operating_map import operating_map
+from enginebench.reports.operating_map import operating_map
 
 
 def test_a_known_error_pattern_comes_back_bin_by_bin():

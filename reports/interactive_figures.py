@@ -1,7 +1,7 @@
 """Interactive figures (plotly) and HTML fragments of a run's results, from plain arrays and frames.
 
 Pure functions: data in, a ``plotly.graph_objects.Figure`` or an HTML string out; no run,
-dataset or method is read here (``experiments.interactive_report`` assembles the page).
+dataset or method is read here (``reports.interactive`` assembles the page).
 Long records are decimated for the browser by keeping each bucket's minimum and maximum
 row (``minmax_rows``), so spikes survive where striding would drop them; the factor is
 said in the figure's subtitle. plotly is the optional extra ``report``.
@@ -18,7 +18,6 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import DataError
-from enginebench.results.units import axis_label, header  # noqa: F401  (re-exported for the page)
 
 MAX_POINTS = 20_000
 """Most points per trace sent to the browser (time series and scatters)."""

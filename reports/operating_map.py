@@ -6,7 +6,7 @@ engine outside what the training records covered. :func:`operating_map` bins the
 rows over two run-time inputs (even bins over the range both the training and the evaluated
 rows span, so extrapolation shows as bins with test rows but no training rows) and gives, per
 bin, the RMSE of each method, the rows evaluated and the training rows. Pure numerics: the
-report draws it (``results/interactive.py``).
+report draws it (``reports/interactive_figures.py``).
 """
 
 from __future__ import annotations

@@ -12,8 +12,9 @@ from matplotlib.figure import Figure as MplFigure
 from matplotlib.image import imread
 
 from enginebench.cli.main import cli
+from enginebench.reports.static import write_report
+from enginebench.reports.static_figures import time_trend_plot
 from enginebench.results import tables
-from enginebench.experiments.report import time_trend_plot, write_report
 from helpers import make_toy
 from enginebench.results.store import RunStore
 from enginebench.results.units import run_units
@@ -114,7 +115,7 @@ def test_repetitions_refit_on_different_training_rows(static_run, tmp_path):
 
 def test_time_trend_breaks_lines_between_segments_and_refuses_mismatched_rows(tmp_path, monkeypatch):
     from enginebench.errors import MethodError
-    from enginebench.experiments.report import Predictions
+    from enginebench.reports.refit import Predictions
 
     t = np.r_[np.arange(5.0), 100 + np.arange(5.0)]
     seg = np.r_[np.zeros(5, int), np.ones(5, int)]
@@ -138,7 +139,7 @@ def test_time_trend_breaks_lines_between_segments_and_refuses_mismatched_rows(tm
 
 
 def test_simulation_run_report_draws_trajectories_with_moe_gate_bands(tmp_path):
-    from enginebench.methods import registry
+    from enginebench import registry
     from enginebench.methods.nfir import NFIR
 
     registry.register(NFIR)

@@ -27,8 +27,8 @@ from enginebench.errors import EngineBenchError, MethodError
 from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
-from enginebench.methods.base import EXPLAIN_WEIGHTS, Method
-from enginebench.results.plots import scatter_plot, trajectory_plot
+from enginebench.method import EXPLAIN_WEIGHTS, Method
+from enginebench.reports.plots import scatter_plot, trajectory_plot
 from enginebench.results.store import Run
 from enginebench.results.units import run_units
 

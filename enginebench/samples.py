@@ -5,35 +5,19 @@ ever offer measured outputs strictly before t: a method cannot read y(t) because
 is not in its inputs.
 
 This module is that contract (``Samples``, ``SegmentSamples``, the window features'
-names, ``make_samples``); the raw arrays and the pools that draw rows from them
-(``SegmentArrays``, ``RawSegments``, ``SamplePool``) are ``pools.py``, whose names stay
-importable from here.
+names); it stands on nothing but numpy and the errors. The raw arrays, the pools that
+draw rows from them and ``make_samples``, which builds samples from a dataset, are
+``datasets/pools.py``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from enginebench.datasets.dataset import Dataset
-from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError
-
-if TYPE_CHECKING:
-    from enginebench.datasets.pools import SamplePool
-
-_POOL_NAMES = ("RawSegments", "SamplePool", "SegmentArrays")
-
-
-def __getattr__(name: str) -> Any:
-    """The pools' names, re-exported on first use: ``pools.py`` builds on this module, so it is imported late."""
-    if name in _POOL_NAMES:
-        from enginebench.datasets import pools
-
-        return getattr(pools, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 MODES = ("static", "window", "simulation")
@@ -206,42 +190,9 @@ def lagged_feature_names(inputs: Sequence[str], outputs: Sequence[str], lags: in
     return names
 
 
-def check_targets(schema: Schema, targets: Sequence[str]) -> list[str]:
-    """``targets`` as a list, each checked to be an 'output' column of ``schema`` (unknown names list all columns)."""
-    targets = list(targets)
-    if not targets:
-        raise DataError("no target given")
-    for name in targets:
-        col = schema[name]
-        if col.role != "output":
-            raise DataError(f"column {name!r} has role {col.role!r}; only 'output' columns can be targets")
-    return targets
-
-
-def make_samples(
-    ds: Dataset,
-    targets: Sequence[str],
-    mode: str = "static",
-    window: float = 0.0,
-    *,
-    inputs: Sequence[str] | None = None,
-    physical_model: Any = None,
-) -> Samples:
-    """Build the samples of ``ds`` for predicting ``targets`` in ``mode``.
-
-    ``window`` (seconds) is the past horizon Delta of the ``window`` mode: inputs over
-    [t - Delta, t] and measured outputs over [t - Delta, t - dt]. The first Delta/dt rows
-    of each segment, whose window is incomplete, are not evaluated.
-    """
-    from enginebench.datasets.pools import RawSegments, SamplePool
-
-    targets = check_targets(ds.schema, targets)
-    raw = RawSegments.from_dataset(ds, inputs=inputs, outputs=targets)
-    return SamplePool(raw, targets, mode, window, physical_model=physical_model).materialize()
-
-
-def iter_batches(data: "Samples | SamplePool", max_rows: int, features: bool = True) -> Iterator[Samples]:
-    """``data`` in consecutive row blocks of at most ``max_rows`` rows (one block if it is small).
+def iter_batches(data: Any, max_rows: int, features: bool = True) -> Iterator[Samples]:
+    """``data`` (``Samples`` or a ``datasets.pools.SamplePool``) in consecutive row blocks of at most ``max_rows``
+    rows (one block if it is small).
 
     ``features=False`` (a pool only): the blocks' ``X`` have no columns, built without the window's lags."""
     n = len(data)

@@ -1,9 +1,9 @@
 """The static report's PNG figures: time trends, measured vs predicted scatters, simulated trajectories.
 
 ``prediction_figures`` draws the re-fitted predictions of a static or window run
-(``report_refit.refit_predictions``): one time trend per (target, window, split, part)
+(``refit.refit_predictions``): one time trend per (target, window, split, part)
 with every method, one scatter per method; ``simulation_figures`` redraws a simulation
-run through ``plots_run.plot_run``. Each returns ``Figure`` entries (path, kind, caption)
+run through ``trajectories.plot_run``. Each returns ``Figure`` entries (path, kind, caption)
 that ``report.write_report`` places on its page; the page itself is ``report.py``.
 """
 
@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from enginebench.errors import MethodError
-from enginebench.experiments.report_refit import Predictions
+from enginebench.reports.refit import Predictions
 from enginebench.results.store import Run
 
 
@@ -88,7 +88,7 @@ def time_trend_plot(predictions: Sequence[Predictions], path: str | Path, *, tit
 
 def prediction_figures(predictions: list[Predictions], out: Path, run: Run) -> list[Figure]:
     """Per (target, window, split, part): a time trend of every method, then one scatter per method."""
-    from enginebench.results.plots import scatter_plot
+    from enginebench.reports.plots import scatter_plot
 
     figures = []
     groups: dict[tuple, list[Predictions]] = {}
@@ -113,8 +113,8 @@ def prediction_figures(predictions: list[Predictions], out: Path, run: Run) -> l
 
 def simulation_figures(run: Run, out: Path, methods, part: str, repetition: int, trajectories: int
                        ) -> tuple[list[Figure], list[str], list]:
-    """A simulation run's trajectories and scatters (``plots_run.plot_run``): (figures, notes, ``Simulated``)."""
-    from enginebench.experiments.plots_run import plot_run
+    """A simulation run's trajectories and scatters (``trajectories.plot_run``): (figures, notes, ``Simulated``)."""
+    from enginebench.reports.trajectories import plot_run
 
     drawn = plot_run(run, out, list(methods) if methods else None, trajectories=trajectories, part=part,
                      repetition=repetition)

@@ -8,7 +8,7 @@ import pytest
 from matplotlib.image import imread
 
 from enginebench.errors import DataError, MethodError
-from enginebench.results.plots import scatter_plot, trajectory_plot
+from enginebench.reports.plots import scatter_plot, trajectory_plot
 
 
 def _signals(n: int = 300):
@@ -74,10 +74,10 @@ def test_bad_inputs_are_refused(tmp_path, kwargs, fragment):
 
 def test_plot_run_redraws_a_stored_simulation_run(tmp_path, toy_parquet):
     """End to end: a tiny stored simulation run (NFIR and MoE) -> trajectory PNG with gate bands, scatters."""
-    from enginebench.experiments.plots_run import plot_run
+    from enginebench.reports.trajectories import plot_run
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import from_dict
-    from enginebench.methods import registry
+    from enginebench import registry
     from enginebench.methods.nfir import NFIR
     from enginebench.results.store import RunStore
 

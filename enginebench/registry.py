@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from enginebench.errors import MethodError
-from enginebench.methods.base import FAMILIES, Method
+from enginebench.method import FAMILIES, Method
 
 ENTRY_POINT_GROUP = "enginebench.methods"
 
@@ -38,7 +38,7 @@ _origin: dict[str, tuple[str, str]] = {}
 
 def _check_class(obj: object, origin: str) -> type[Method]:
     if not (isinstance(obj, type) and issubclass(obj, Method)):
-        raise MethodError(f"{origin}: {obj!r} is not a subclass of enginebench.methods.base.Method")
+        raise MethodError(f"{origin}: {obj!r} is not a subclass of enginebench.method.Method")
     if not obj.name:
         raise MethodError(f"{origin}: method class {obj.__name__} has no 'name'")
     if obj.family not in FAMILIES:

@@ -8,7 +8,7 @@ copied, zipped or logged as one artefact:
   its block's best, and the run's info, config and environment;
 - measured vs predicted scatters and time trends of the evaluated part (test by
   default). Predictions are not stored in a run, so they come from re-fitting one
-  repetition: a simulation run is redrawn by ``experiments.plots_run.plot_run``
+  repetition: a simulation run is redrawn by ``reports.trajectories.plot_run``
   (trajectories, with gate bands underneath from the first method whose ``explain``
   hook declares mixing weights, e.g. a mixture of experts); in
   static and window modes each method is fitted again on that repetition's training
@@ -18,8 +18,8 @@ copied, zipped or logged as one artefact:
 A figure that cannot be drawn (a missing dataset, a failed re-fit) is skipped with a
 note in the page, never silently.
 
-This module writes the page; the re-fit is ``report_refit.py`` and the PNG figures
-``report_figures.py``, whose names stay importable from here.
+This module writes the page; the re-fit is ``refit.py`` and the PNG figures
+``static_figures.py``.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import EngineBenchError, MethodError
-from enginebench.experiments.report_figures import Figure, prediction_figures, simulation_figures, time_trend_plot
-from enginebench.experiments.report_refit import MAX_ROWS, REFIT_ERRORS, Predictions, refit_predictions
+from enginebench.reports.refit import MAX_ROWS, REFIT_ERRORS, Predictions, refit_predictions
+from enginebench.reports.static_figures import Figure, prediction_figures, simulation_figures, time_trend_plot
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
 from enginebench.results.store import Run
@@ -73,7 +73,7 @@ class ReportResult:
     notes: list[str] = field(default_factory=list)
     predictions: list[Predictions] = field(default_factory=list)
     simulated: list = field(default_factory=list)
-    """Simulation runs: the re-fitted trajectories drawn (``plots_run.Simulated``)."""
+    """Simulation runs: the re-fitted trajectories drawn (``trajectories.Simulated``)."""
 
 
 @dataclass(frozen=True)

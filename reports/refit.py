@@ -3,8 +3,8 @@
 Predictions are not stored in a run, so ``refit_predictions`` fits each method of a
 static or window run again on that repetition's training subsample with the
 hyperparameters the run selected, and predicts the evaluated part (thinned to
-``MAX_ROWS``). Both reports draw from them: ``report.write_report`` (PNG figures, through
-``report_figures``) and ``interactive_report.write_interactive_report``. Kept apart from
+``MAX_ROWS``). Both reports draw from them: ``static.write_report`` (PNG figures, through
+``static_figures``) and ``interactive.write_interactive_report``. Kept apart from
 the pages so that what is predicted is one job and how it is shown another.
 """
 
@@ -62,7 +62,7 @@ def refit_predictions(
     to evenly spaced rows. Returns the predictions and notes on what was skipped.
     """
     from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples
-    from enginebench.experiments.plots_run import weights_of
+    from enginebench.reports.trajectories import weights_of
     from enginebench.experiments.runner import prepare
     from enginebench.experiments.spec import from_dict
 
