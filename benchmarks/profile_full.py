@@ -44,7 +44,7 @@ STAGES: list[tuple[int, str, tuple[tuple[str, str], ...]]] = [
     (2, "kernel matrices", (("methods/numerics/kernels.py", "sq_distances"), ("methods/numerics/kernels.py", "gaussian"),
                                   ("methods/numerics/kernels.py", "gaussian_apply"))),
     (2, "factorisations / solves", (("methods/numerics/shifted.py", "shifted_solutions"), ("methods/numerics/kernels.py", "from_kernel"))),
-    (2, "scoring", (("experiments/selection.py", "grid_scores"),)),
+    (2, "scoring", (("results/metrics.py", "grid_scores"),)),
     (2, "MoE training epochs", (("methods/moe/training.py", "_train"),)),
     (2, "regularised derivatives (TV)", (("methods/numerics/derivatives.py", "differentiate"),)),
     (2, "simulation (free run)", (("methods/moe/simulation.py", "simulate"), ("methods/numerics/integrate.py", "integrate"))),

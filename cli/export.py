@@ -1,6 +1,6 @@
 """``enginebench export``: a stored model as an FMU (``--fmu``), or the run to MLflow (``--mlflow``, cli/report.py).
 
-The FMU work is ``methods/export/from_run.py``; this module parses and prints.
+The FMU work is ``reports/fmu_export.py``; this module parses and prints.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def _export(**kw) -> None:
     if not kw.get("method"):
         raise click.UsageError("--fmu needs --method METHOD: the stored model to export")
     from enginebench.cli.options import load_plugins
-    from enginebench.methods.export.from_run import export_fmu, find_model, result_json
+    from enginebench.reports.fmu_export import export_fmu, find_model, result_json
     from enginebench.results.store import RunStore
 
     load_plugins(kw["plugins"])

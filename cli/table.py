@@ -6,11 +6,12 @@ import click
 from rich.console import Console
 
 from enginebench.cli.options import check_metrics, check_output, emit, split_list, store_option
+from enginebench.results.output import FORMATS
 
 
 @click.command()
 @click.argument("run_ref", metavar="RUN", default="latest")
-@click.option("--format", "fmt", type=click.Choice(["term", "md", "latex", "csv", "html"]), default="term", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="term", show_default=True)
 @click.option("--metrics", default=None, help="Comma-separated metric columns (wide formats), or 'all' (every "
               "metric the run has) [default: mae,mape,ppmcc,rmae; rmse,nrmse,fit,rmae for a simulation-mode run].")
 @click.option("--interval", type=click.Choice(["t", "bootstrap"]), default=None, help="Interval over repetitions [default: the run's].")

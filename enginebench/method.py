@@ -16,8 +16,6 @@ FAMILIES = ("physical", "data-driven", "hybrid", "baseline")
 
 EXPLAIN_WEIGHTS = "weights"
 """``Method.explain`` key: mixing weights per row (sum 1), drawn as stacked bands (a mixture's gate)."""
-EXPLAIN_COMPONENTS = "components"
-"""``Method.explain`` key: additive parts of the prediction per row."""
 
 Params = Mapping[str, Any]
 SearchSpace = dict[str, np.ndarray]
@@ -172,10 +170,9 @@ class Method:
 
         Each value holds one (len(s.rows), k) array per segment of ``data``, aligned with
         the arrays ``predict`` returns (in simulation mode evaluated along the simulated
-        trajectory, never the measured one). Reserved names that figures draw:
+        trajectory, never the measured one). The reserved name that figures draw:
         ``EXPLAIN_WEIGHTS`` ("weights": k mixing weights summing to 1 per row, e.g. a
-        mixture of experts' gate, drawn as stacked bands under the trajectory) and
-        ``EXPLAIN_COMPONENTS`` ("components": k additive parts of the prediction). Other
+        mixture of experts' gate, drawn as stacked bands under the trajectory). Other
         names are free. The default explains nothing ({}), and figures then draw the
         prediction alone: the toolkit never recognises a method by its name or class.
         """

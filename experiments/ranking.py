@@ -19,9 +19,10 @@ import numpy as np
 import pandas as pd
 
 from enginebench.errors import MethodError
-from enginebench.experiments.selection import grid_scores, resample_pairs, select
+from enginebench.experiments.selection import resample_pairs, select
 from enginebench.experiments.spec import Selection
 from enginebench.method import Method
+from enginebench.results.metrics import grid_scores
 from enginebench.samples import Samples
 
 PM_VARIABLE = "PM"

@@ -21,33 +21,8 @@ from enginebench.experiments.extension import MAX_ROUNDS, Extension, extend
 from enginebench.experiments.search import plain, range_positions, range_warnings, search_points
 from enginebench.experiments.spec import Selection
 from enginebench.method import Method, grid_points
+from enginebench.results.metrics import grid_scores
 from enginebench.samples import Samples
-
-
-def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.ndarray:
-    """Score every grid point: (n_grid, n_rows, k) predictions of ``data`` -> (n_grid,).
-
-    ``mae`` pools rows; ``rmae`` averages each segment's MAE (the training-scale divisor
-    of RMAE is common to all grid points, so it does not change the ranking).
-    Non-finite predictions score +inf. With several targets (a joint job) each target's
-    errors are divided by its standard deviation over ``data`` first, so that outputs in
-    different units weigh alike (one target: the scores are in its unit, as always).
-    """
-    err = np.abs(predictions - data.y[None])
-    if data.y.shape[1] > 1:
-        sd = data.y.std(axis=0)
-        err = err / np.where(sd > 0, sd, 1.0)
-    if criterion == "mae":
-        score = err.mean(axis=(1, 2))
-    elif criterion == "rmse":
-        with np.errstate(over="ignore", invalid="ignore"):
-            score = np.sqrt((err ** 2).mean(axis=(1, 2)))
-    else:
-        sizes = [len(s) for s in data.segments]
-        edges = np.r_[0, np.cumsum(sizes)]
-        per_seg = np.stack([err[:, a:b].mean(axis=(1, 2)) for a, b in zip(edges[:-1], edges[1:])], axis=1)
-        score = per_seg.mean(axis=1)
-    return np.where(np.isfinite(score), score, np.inf)
 
 
 def _segment_rows(sizes: np.ndarray) -> list[np.ndarray]:

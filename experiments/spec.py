@@ -47,13 +47,13 @@ from enginebench.declare import (Declaration, Invalid, anything, choice, did_you
                                  table, text, whole)
 from enginebench.errors import SpecError
 from enginebench.experiments.search import SEARCHES
+from enginebench.results.metrics import CRITERIA
 from enginebench.samples import MODES
 
 ALL_TARGETS = "all"
 """``targets = "all"`` (a string, not a list): every column of role output. A column named "all"
 is named in a list: ``targets = ["all"]``."""
 SELECTION_KINDS = ("bootstrap", "kfold", "validation", "none")
-CRITERIA = ("mae", "rmae", "rmse")
 INTERVALS = ("t", "bootstrap")
 
 
@@ -131,7 +131,6 @@ TOP = Declaration(
           unit="samples", message="'{name}' must be a whole number of samples >= 0, got {value}"),
 )
 """The experiment spec's top-level keys (``run`` names the methods when [methods.NAME] tables are given)."""
-TOP_KEYS = set(TOP.names())
 
 SELECTION = Declaration(
     choice("kind", "bootstrap", "how hyperparameters are selected", SELECTION_KINDS,
@@ -149,7 +148,6 @@ SELECTION = Declaration(
     flag("extend", True, "grid search: a value selected at a grid's edge is searched further, up to the bounds "
          "the method declares (false: the grids as declared, e.g. a paper's protocol)"),
 )
-SELECTION_KEYS = tuple(SELECTION.names())
 
 _KIND = text("kind", "published", "split kind")
 SPLITS: dict[str, Declaration] = {

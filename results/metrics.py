@@ -20,8 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
-from enginebench.errors import DataError
+from enginebench.errors import DataError, SpecError
 from enginebench.results.stats import describe
+from enginebench.samples import Samples
 
 __all__ = [
     "METRICS",
@@ -573,3 +574,35 @@ def _segment_fit(t: np.ndarray, p: np.ndarray, lengths: np.ndarray, notes: dict[
         f = describe(100.0 * (1.0 - per))
     return {"nrmse_seg_mean": n["mean"], "nrmse_seg_median": n["median"],
             "fit_seg_mean": f["mean"], "fit_seg_median": f["median"], "fit_seg_iqr": f["iqr"]}
+
+
+CRITERIA = ("mae", "rmae", "rmse")
+"""The metrics a model selection may minimise (``[selection] criterion``), scored over a whole grid by ``grid_scores``."""
+
+
+def grid_scores(predictions: np.ndarray, data: Samples, criterion: str) -> np.ndarray:
+    """Model selection's score of every grid point: (n_grid, n_rows, k) predictions of ``data`` -> (n_grid,).
+
+    One of ``CRITERIA``: ``mae`` pools rows; ``rmae`` averages each segment's MAE (the training-scale divisor
+    of RMAE is common to all grid points, so it does not change the ranking).
+    Non-finite predictions score +inf. With several targets (a joint job) each target's
+    errors are divided by its standard deviation over ``data`` first, so that outputs in
+    different units weigh alike (one target: the scores are in its unit, as always).
+    """
+    err = np.abs(predictions - data.y[None])
+    if data.y.shape[1] > 1:
+        sd = data.y.std(axis=0)
+        err = err / np.where(sd > 0, sd, 1.0)
+    if criterion == "mae":
+        score = err.mean(axis=(1, 2))
+    elif criterion == "rmse":
+        with np.errstate(over="ignore", invalid="ignore"):
+            score = np.sqrt((err ** 2).mean(axis=(1, 2)))
+    elif criterion == "rmae":
+        sizes = [len(s) for s in data.segments]
+        edges = np.r_[0, np.cumsum(sizes)]
+        per_seg = np.stack([err[:, a:b].mean(axis=(1, 2)) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+        score = per_seg.mean(axis=1)
+    else:
+        raise SpecError(f"selection criterion {criterion!r} is not one of {', '.join(CRITERIA)}")
+    return np.where(np.isfinite(score), score, np.inf)

@@ -32,7 +32,6 @@ from enginebench.results.units import WINDOW, axis_label, header, metric_unit
 
 DEFAULT_METRICS = ("mae", "mape", "ppmcc", "rmae")
 SIMULATION_METRICS = ("rmse", "nrmse", "fit", "rmae")
-FORMATS = ("term", "md", "latex", "csv", "html")
 CROSSED = "†"
 IDENTICAL = "‡"
 COUNT_COLUMNS = ("n", "failed", "diverged")

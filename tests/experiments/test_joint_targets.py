@@ -15,9 +15,9 @@ from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.schema import Column, Schema
 from enginebench.experiments.jobs import JOINT
 from enginebench.experiments.runner import run_experiment
-from enginebench.experiments.selection import grid_scores
 from enginebench.experiments.spec import from_dict
 from enginebench.methods.arx import ARX
+from enginebench.results.metrics import grid_scores
 from enginebench.results.store import RunStore
 
 

@@ -8,9 +8,10 @@ import pytest
 from enginebench.datasets.pools import make_samples
 from enginebench.errors import MethodError
 from enginebench.experiments.jobs import subsample, subsample_segments
-from enginebench.experiments.selection import grid_scores, resample_pairs, select
+from enginebench.experiments.selection import resample_pairs, select
 from enginebench.experiments.spec import Selection
 from enginebench.methods.krls import KRLS
+from enginebench.results.metrics import grid_scores
 
 
 def test_segment_bootstrap_keeps_trajectories_whole():

@@ -264,7 +264,7 @@ def test_keep_models_is_not_part_of_the_config_hash():
 @needs_fmu
 @pytest.mark.parametrize("method", ["naive-mean", "arx", "narx", "nfir"])
 def test_each_exportable_methods_fmu_reproduces_the_runs_predictions(kept_run, method, tmp_path):
-    from enginebench.methods.export.from_run import export_fmu, find_model
+    from enginebench.reports.fmu_export import export_fmu, find_model
 
     path = find_model(kept_run.path, kept_run.id, method, None, None)
     result = export_fmu(path, tmp_path / f"{method}.fmu", timing=True, run_id=kept_run.id)
@@ -308,7 +308,7 @@ def test_an_fmu_refuses_a_step_that_is_not_a_multiple_of_dt(kept_run, tmp_path):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from enginebench.methods.export.from_run import export_fmu, find_model
+    from enginebench.reports.fmu_export import export_fmu, find_model
 
     result = export_fmu(find_model(kept_run.path, kept_run.id, "arx", None, None), tmp_path / "arx.fmu")
     md = read_model_description(str(result.path))
