@@ -1,0 +1,147 @@
+"""The layers of the package, read from the source with ast: no import runs upward, none runs in a circle.
+
+    enginebench/ (errors, declare, papers, samples, method, registry)   the contracts
+        <- datasets/, methods/      (neither imports the other)
+        <- results/                 (the run store, metrics, tables)
+        <- experiments/             (the protocol engine)
+        <- reports/                 (pages and figures of stored runs; they re-fit through the engine)
+        <- cli/ and the facades enginebench/api.py, testing*.py, ...
+
+Every import counts, the ones inside functions included. docs/design.md draws the same picture.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLDERS = ("cli", "datasets", "experiments", "methods", "reports", "results")
+CONTRACTS = {"errors", "declare", "papers", "samples", "method", "registry"}
+"""The root package's modules that every layer stands on; the other root modules are facades over the layers."""
+RANK = {"contracts": 0, "datasets": 1, "methods": 1, "results": 2, "experiments": 3, "reports": 4, "cli": 5, "facades": 5}
+KNOWN_CIRCLES: list[set[str]] = [
+    # built-in datasets are imported by name from the catalog, and an FMU calibration loads a dataset by name
+    {"enginebench.datasets.catalog", "enginebench.datasets.importer", "enginebench.datasets.fmu",
+     "enginebench.datasets.fmu_calibrate", "enginebench.datasets.bosch_engine", "enginebench.datasets.sysid_benchmarks"},
+    # the marine physical model calibrates itself to the factory test on first use
+    {"enginebench.datasets.marine_diesel.calibration", "enginebench.datasets.marine_diesel.pm"},
+    # `run` prints a learning curve's end, `learning-curve` reuses run's resume hint and SIGTERM handling
+    {"enginebench.cli.learning_curve", "enginebench.cli.run"},
+]
+"""Circles that stand today, each through an import inside a function; the list may only shrink."""
+
+
+def modules() -> dict[str, Path]:
+    """Import name -> source file, for every module of the package as pyproject.toml maps the folders."""
+    found = {}
+    for top, name in [("enginebench", "enginebench"), *((f, f"enginebench.{f}") for f in FOLDERS)]:
+        for path in sorted((ROOT / top).rglob("*.py")):
+            parts = path.relative_to(ROOT / top).with_suffix("").parts
+            parts = parts[:-1] if parts[-1] == "__init__" else parts
+            found[".".join((name, *parts))] = path
+    return found
+
+
+MODULES = modules()
+
+
+def layer(module: str) -> str:
+    parts = module.split(".")
+    if len(parts) > 1 and parts[1] in FOLDERS:
+        return parts[1]
+    return "contracts" if len(parts) > 1 and parts[1] in CONTRACTS else "facades"
+
+
+def imports(module: str) -> list[tuple[str, int]]:
+    """(imported module of the package, line) for every import in ``module``'s source, nested ones included."""
+    path = MODULES[module]
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join([*package.split(".")[: len(package.split(".")) - node.level + 1], *filter(None, [base])])
+            names = [f"{base}.{a.name}" for a in node.names]  # a submodule, or else its package
+        else:
+            continue
+        for name in names:
+            while name and name not in MODULES:
+                name = name.rpartition(".")[0]
+            if name and name != module and name != "enginebench":
+                out.append((name, node.lineno))
+    return sorted(set(out))
+
+
+GRAPH = {m: imports(m) for m in MODULES if m != "enginebench"}  # the package face only hands names on
+
+
+def upward(module: str, imported: str) -> bool:
+    a, b = layer(module), layer(imported)
+    if a == b:
+        return False
+    return RANK[b] >= RANK[a] or (b == "facades")
+
+
+def test_the_folders_are_read():
+    assert {"enginebench.samples", "enginebench.method", "enginebench.registry", "enginebench.experiments.runner",
+            "enginebench.reports.static", "enginebench.cli.main"} <= set(MODULES)
+
+
+@pytest.mark.parametrize("module", sorted(GRAPH))
+def test_no_import_runs_upward(module):
+    bad = [f"{MODULES[module].relative_to(ROOT)}:{line} imports {name} ({layer(module)} -> {layer(name)})"
+           for name, line in GRAPH[module] if upward(module, name)]
+    assert not bad, "; ".join(bad)
+
+
+def circles() -> list[set[str]]:
+    """The strongly connected groups of more than one module (Tarjan), every import counted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w, _ in GRAPH.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = set()
+            while True:
+                w = stack.pop()
+                group.add(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(group)
+
+    for v in GRAPH:
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_new_circle():
+    new = [sorted(c) for c in circles() if not any(c <= known for known in KNOWN_CIRCLES)]
+    assert not new, f"modules that import each other: {new}"
+
+
+def test_the_layering_check_fails_on_an_upward_import():
+    """The check itself: a dataset module importing the engine, or a contract importing a method, is caught."""
+    assert upward("enginebench.datasets.io", "enginebench.experiments.runner")
+    assert upward("enginebench.method", "enginebench.methods.ridge")
+    assert upward("enginebench.methods.ridge", "enginebench.datasets.io")  # side by side: neither imports the other
+    assert upward("enginebench.results.store", "enginebench.api")
+    assert not upward("enginebench.reports.static", "enginebench.experiments.runner")
+    assert not upward("enginebench.methods.ridge", "enginebench.samples")
