@@ -9,6 +9,7 @@ import click
 
 from enginebench.cli.options import check_output, load_plugins, plugin_option, store_option
 from enginebench.cli.progress import JobProgress
+from enginebench.experiments.executors import EXECUTORS
 
 if TYPE_CHECKING:
     from enginebench.results.store import Run
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG file for the plot [default: learning_curve.png in the run folder].")
 @click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes [default: all cores].")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
+@click.option("--executor", type=click.Choice(EXECUTORS), default=None,
               help="Where jobs run, as for 'run' [default: local; dask with --scheduler].")
 @click.option("--scheduler", default=None, metavar="ADDR", help="Dask scheduler address (as for 'run').")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")

@@ -10,6 +10,7 @@ from rich.console import Console
 
 from enginebench.cli.options import load_plugins, plugin_option, store_option
 from enginebench.cli.progress import JobProgress
+from enginebench.experiments.executors import EXECUTORS
 
 if TYPE_CHECKING:
     from enginebench.results.store import Run, RunStore
@@ -24,18 +25,22 @@ if TYPE_CHECKING:
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Base seed (overrides the experiment).")
 @click.option("--train-size", type=click.IntRange(min=0), default=None, help="Training subsample size (0 = all rows).")
 @click.option("--jobs", "-j", "workers", type=click.IntRange(min=1), default=None, help="Worker processes of the local pool or local Dask cluster [default: all cores].")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
-              help="Where jobs run: local (process pool) or dask (a Dask cluster) [default: local; dask with --scheduler].")
+@click.option("--executor", type=click.Choice(EXECUTORS), default=None,
+              help="Where jobs run: local (process pool), dask (a Dask cluster) or slurm (SLURM job arrays through "
+                   "submitit; docs/cluster.md) [default: local; dask with --scheduler].")
 @click.option("--scheduler", default=None, metavar="ADDR",
               help="Dask scheduler address (tcp://HOST:8786, e.g. of a dask-jobqueue SLURMCluster); "
                    "without it --executor dask starts a local cluster of --jobs workers.")
+@click.option("--slurm", "slurm_options", multiple=True, metavar="KEY=VALUE",
+              help="A [slurm] setting of --executor slurm over the experiment's (repeatable): partition, time, cpus, "
+                   "memory, max_parallel, account, qos, setup, cluster...")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @click.option("--tag", "tags", multiple=True, metavar="KEY=VALUE",
               help="Label the run (repeatable); kept in its run.json, not in its config; `runs list --tag` filters on it.")
 @store_option
 @plugin_option
-def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, executor, scheduler, quiet, tags, store,
-        plugins) -> None:
+def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, executor, scheduler, slurm_options, quiet,
+        tags, store, plugins) -> None:
     """Run EXPERIMENT (a built-in name or a .toml file) and store it as a run.
 
     Every finished job is written to the run store at once, so an interrupted run keeps
@@ -44,6 +49,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     (install with `pip install "enginebench[dask]"`); the results are the same.
     """
     from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.slurm import parse_slurm_options
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore
     from enginebench.cli.table import paired_lines
@@ -55,6 +61,8 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     from enginebench.results.catalog import parse_tags
 
     tag_map = parse_tags(tags)
+    if slurm_options and (executor or "local") != "slurm":
+        raise SpecError("--slurm KEY=VALUE sets resources of --executor slurm; add --executor slurm")
     load_plugins(plugins)
     store_obj = RunStore(store)
     resume = spec = None
@@ -84,7 +92,8 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
             result = run_experiment(spec, store_obj, workers=workers,
                                     plugins=tuple(str(Path(p).resolve()) for p in plugins), progress=bar,
                                     resume=resume, executor=executor or ("dask" if scheduler else "local"),
-                                    scheduler=scheduler, tags=tag_map)
+                                    scheduler=scheduler, tags=tag_map,
+                                    executor_options=parse_slurm_options(slurm_options))
             bar.describe(f"{name}: done")
     except (KeyboardInterrupt, SystemExit):
         echo_resume_hint(store_obj, known, resume)

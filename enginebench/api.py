@@ -13,15 +13,18 @@ enginebench.samples, datasets.pools, testing) are internal and may move. ``check
 is the conformance suite for a plugin's tests; ``SamplePool``/``RawSegments``/
 ``tiny_samples`` build samples for tests of one's own.
 
-Reading stored runs: ``open_run`` opens a run by id, unique id prefix, 'latest' or folder
-(a ``Run``; a reference that finds none is one ``StoreError`` line), ``picks_frame(run)`` is
-each job's selected hyperparameters and ``folds_frame(run)`` the selection scores behind
-them (docs/runs.md)::
+Running and reading runs (docs/python.md): ``run(experiment, **overrides)`` runs an experiment and
+returns its ``Run``; ``open_run`` opens a stored run by id, unique id prefix, 'latest' or folder (a
+reference that finds none, or of the wrong type, is one ``StoreError`` line, an ``EngineBenchError``);
+``Run.table()``, ``Run.jobs()`` and ``Run.predictions(method, target)`` are pandas DataFrames;
+``picks_frame(run)`` is each job's selected hyperparameters and ``folds_frame(run)`` the selection
+scores behind them (docs/runs.md)::
 
-    from enginebench.api import folds_frame, open_run, picks_frame
+    from enginebench.api import open_run, run
 
-    run = open_run("latest")                  # or a run id, or Path("enginebench-runs/<id>")
-    picks = picks_frame(run)                  # method, target, window, split, repetition, param:<name>...
+    result = run("marine-diesel-egt-quick", methods=["naive-mean", "ridge"], repetitions=2)
+    result.table(metrics=["mae"])             # method, target, Delta, split, metric, mean, low, high, n...
+    open_run("latest").jobs()                 # one row per job: status, reason, param:<name>, time:<name>
 """
 
 from __future__ import annotations
@@ -29,12 +32,12 @@ from __future__ import annotations
 from enginebench import declare
 from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.declare import Declaration
-from enginebench.errors import MethodError, StoreError
+from enginebench.errors import DataError, EngineBenchError, MethodError, SpecError, StoreError
 from enginebench.method import (
     FAMILIES, Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, grid_points, log_grid, split_rows,
 )
 from enginebench.results.picks import folds_frame, picks_frame
-from enginebench.results.store import Run, open_run
+from enginebench.runs import TABLE_COLUMNS, Run, open_run, run
 from enginebench.samples import Samples, SegmentSamples
 from enginebench.testing import ConformanceError, ConformanceReport, check_method, tiny_samples
 
@@ -42,7 +45,9 @@ __all__ = [
     "FAMILIES",
     "ConformanceError",
     "ConformanceReport",
+    "DataError",
     "Declaration",
+    "EngineBenchError",
     "Method",
     "MethodError",
     "Params",
@@ -53,7 +58,9 @@ __all__ = [
     "SearchSpace",
     "SegmentPredictions",
     "SegmentSamples",
+    "SpecError",
     "StoreError",
+    "TABLE_COLUMNS",
     "check_log_grid_option",
     "check_method",
     "declare",
@@ -62,6 +69,7 @@ __all__ = [
     "log_grid",
     "open_run",
     "picks_frame",
+    "run",
     "split_rows",
     "tiny_samples",
 ]

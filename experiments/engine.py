@@ -13,7 +13,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from enginebench.datasets import catalog
 from enginebench.datasets.dataset import Dataset
@@ -22,7 +22,7 @@ from enginebench.datasets.pools import RawSegments, check_targets
 from enginebench.datasets.schema import Schema
 from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
-from enginebench.experiments.executors import default_workers, run_dask, run_local
+from enginebench.experiments.executors import default_workers, run_jobs, shares_memory
 from enginebench.experiments.jobs import JOINT, Context, Job, Problem, joint_methods
 from enginebench.experiments.search import check_search
 from enginebench.experiments.selection import record_blocks
@@ -234,6 +234,7 @@ def execute(
     executor: str = "local",
     scheduler: str | None = None,
     resume: ResumeState | None = None,
+    executor_options: dict[str, Any] | None = None,
 ) -> RunResult:
     """Run the jobs of ``plan(ctx)`` that ``run`` lacks and write each as it arrives; mark the run finished.
 
@@ -256,13 +257,13 @@ def execute(
     if hasattr(progress, "plan_jobs"):  # ... and which jobs, for costs per method (experiments/progress.py)
         progress.plan_jobs(todo)
     spill_dir = None
-    if len(todo) > 1 and (workers > 1 if executor == "local" else scheduler is None):
+    if len(todo) > 1 and shares_memory(executor, workers, scheduler):
         spill_dir = tempfile.mkdtemp(prefix="enginebench-raw-")
         spill_problems(ctx, Path(spill_dir))
     results = None
     try:
-        results = (run_dask(ctx, todo, workers, plugins, scheduler) if executor == "dask"
-                   else run_local(ctx, todo, workers, plugins))
+        results = run_jobs(executor, ctx, todo, workers=workers, plugins=plugins, scheduler=scheduler,
+                           run_dir=run.path, options=executor_options)
         for job, (rows, meta) in results:
             run.write_job(job.key, rows, meta)
             n_failed += meta["status"] != "ok"

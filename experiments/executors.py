@@ -1,5 +1,7 @@
 """Executors: where jobs run. In-process for one worker, a local process pool otherwise,
-or a Dask distributed cluster (``--executor dask``).
+a Dask distributed cluster (``--executor dask``), or SLURM job arrays through submitit
+(``--executor slurm``, experiments/slurm.py). ``EXECUTORS`` is the one list of their names
+(the CLI's choices); ``run_jobs`` picks one.
 
 The prepared context is pickled once and unpickled once per worker (after the worker has
 loaded any plugin files, so plugin classes resolve). Results come back to the parent,
@@ -19,10 +21,12 @@ import uuid
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
 
 from enginebench.errors import EngineBenchError
-from enginebench.experiments.jobs import Context, Job, run_job
+
+if TYPE_CHECKING:  # imported where used: the CLI reads EXECUTORS without loading the job machinery
+    from enginebench.experiments.jobs import Context, Job
 
 _CTX: Context | None = None
 
@@ -58,6 +62,8 @@ def _init_worker(blob: bytes, plugins: tuple[str, ...], threads: int, parent: in
 
 
 def _work(job: Job) -> tuple[Job, Any]:
+    from enginebench.experiments.jobs import run_job
+
     assert _CTX is not None
     return job, run_job(_CTX, job)
 
@@ -76,6 +82,8 @@ def run_local(
     the caller stores results), instead of the pool's default exit, which waits until every
     queued job has run for nobody.
     """
+    from enginebench.experiments.jobs import run_job
+
     jobs = list(jobs)
     if workers <= 1 or len(jobs) <= 1:
         for job in jobs:
@@ -215,10 +223,13 @@ def _load_shipped_plugins(sources: tuple[tuple[str, str], ...]) -> None:
 
 
 def _dask_work(payload: _Payload, job: Job) -> tuple[Job, Any]:
+    from enginebench.experiments.jobs import run_job
+
     return job, run_job(_dask_context(payload), job)
 
 
-EXECUTORS = ("local", "dask")
+EXECUTORS = ("local", "dask", "slurm")
+"""Every executor's name, here only: ``--executor``'s choices come from this list."""
 
 
 def check_executor(executor: str, scheduler: str | None, timeout: float | None = None) -> None:
@@ -230,7 +241,12 @@ def check_executor(executor: str, scheduler: str | None, timeout: float | None =
         raise ExecutorError(f"unknown executor {executor!r}; use one of {', '.join(EXECUTORS)}")
     if executor != "dask":
         if scheduler:
-            raise ExecutorError(f"--scheduler {scheduler} needs --executor dask (the local executor has no scheduler)")
+            raise ExecutorError(f"--scheduler {scheduler} needs --executor dask (the {executor} executor has no "
+                                "scheduler)")
+        if executor == "slurm":
+            from enginebench.experiments.slurm import check_submitit
+
+            check_submitit()
         return
     if scheduler is not None:
         client, _ = _connect(scheduler, 1, CONNECT_TIMEOUT_S if timeout is None else timeout)
@@ -320,3 +336,37 @@ def run_dask(
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def shares_memory(executor: str, workers: int, scheduler: str | None) -> bool:
+    """Whether the jobs run in processes of this machine (so large raw arrays are worth memory-mapping once)."""
+    return workers > 1 if executor == "local" else executor == "dask" and scheduler is None
+
+
+def run_jobs(
+    executor: str,
+    ctx: Context,
+    jobs: Iterable[Job],
+    *,
+    workers: int,
+    plugins: tuple[str, ...] = (),
+    scheduler: str | None = None,
+    run_dir: str | Path | None = None,
+    options: Mapping[str, Any] | None = None,
+) -> Iterator[tuple[Job, Any]]:
+    """The (job, result) pairs of ``jobs`` as they finish on ``executor`` (one of ``EXECUTORS``).
+
+    ``run_dir`` is the run folder (the slurm executor shares the context and the results through it);
+    ``options`` are the executor's settings from the command line (slurm: ``--slurm KEY=VALUE``).
+    """
+    if executor == "dask":
+        return run_dask(ctx, jobs, workers, plugins, scheduler)
+    if executor == "slurm":
+        from enginebench.experiments.slurm import run_slurm
+
+        if run_dir is None:
+            raise ExecutorError("the slurm executor needs the run folder (on a shared file system)")
+        return run_slurm(ctx, jobs, run_dir, plugins, options)
+    if executor != "local":
+        raise ExecutorError(f"unknown executor {executor!r}; use one of {', '.join(EXECUTORS)}")
+    return run_local(ctx, jobs, workers, plugins)

@@ -9,6 +9,7 @@ as soon as it arrives. A stored learning-curve run resumes here too (``context_o
 from __future__ import annotations
 
 import itertools
+from typing import Any
 
 from enginebench import registry
 from enginebench.datasets.pools import RawSegments, SamplePool
@@ -108,11 +109,13 @@ def run_experiment(
     executor: str = "local",
     scheduler: str | None = None,
     tags: dict[str, str] | None = None,
+    executor_options: dict[str, Any] | None = None,
 ) -> RunResult:
     """Run ``spec`` end to end and return the stored run (a new run gets ``tags``, KEY -> VALUE, in its run.json).
 
     ``executor`` is ``local`` (in-process or a process pool of ``workers``) or ``dask``
-    (the cluster at ``scheduler``, or a LocalCluster of ``workers`` processes without one).
+    (the cluster at ``scheduler``, or a LocalCluster of ``workers`` processes without one) or
+    ``slurm`` (job arrays through submitit; ``executor_options`` override the spec's ``[slurm]`` keys).
 
     With ``resume``, the run's own config is used (``spec`` is ignored), its finished jobs
     are kept as they are, and only the missing jobs run (a job is finished once its file
@@ -129,7 +132,7 @@ def run_experiment(
                            len(plan(ctx)), tags=tags)
         run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx))
         return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
-                       scheduler=scheduler)
+                       scheduler=scheduler, executor_options=executor_options)
     state = resume.prepare_resume()  # refuses a damaged run, other plugin files, a second writer
     try:
         ctx = context_of_run(resume)
@@ -137,4 +140,4 @@ def run_experiment(
         resume.unlock()
         raise
     return execute(ctx, resume, workers=workers, plugins=plugins, progress=progress, executor=executor,
-                   scheduler=scheduler, resume=state)
+                   scheduler=scheduler, resume=state, executor_options=executor_options)

@@ -47,6 +47,7 @@ from enginebench.declare import (Declaration, Invalid, anything, choice, did_you
                                  table, text, whole)
 from enginebench.errors import SpecError
 from enginebench.experiments.search import SEARCHES
+from enginebench.experiments.slurm import check_slurm
 from enginebench.results.metrics import CRITERIA
 from enginebench.samples import MODES
 
@@ -129,6 +130,8 @@ TOP = Declaration(
           message="[methods.NAME] entries must be tables of options"),
     whole("init_samples", 0, "simulation mode: samples that set each evaluated segment's state", low=0,
           unit="samples", message="'{name}' must be a whole number of samples >= 0, got {value}"),
+    table("slurm", {}, "resources of --executor slurm ([slurm] and [slurm.methods.NAME], experiments/slurm.py); "
+          "not part of the config hash", message="'slurm' must be a table such as [slurm] partition = \"cpu\""),
 )
 """The experiment spec's top-level keys (``run`` names the methods when [methods.NAME] tables are given)."""
 
@@ -188,7 +191,7 @@ SPLITS: dict[str, Declaration] = {
 SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
 
 
-DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False, "joint_targets": False}
+DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False, "joint_targets": False, "slurm": {}}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
 SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50, "extend": True}
 """The same for [selection] keys: earlier runs' configs (and hashes) stay as they were."""
@@ -236,6 +239,9 @@ class ExperimentSpec:
     all_targets: bool = False
     """``targets = "all"``: every output column of the dataset, resolved when the data are read
     (:meth:`with_outputs`); a stored run's config holds the resolved list."""
+    slurm: dict[str, Any] = field(default_factory=dict)
+    """The ``[slurm]`` table: where ``--executor slurm`` runs each method's jobs; kept in the run's config (so a
+    resume asks for the same resources) but not in its config hash (it never changes a result)."""
 
     def with_outputs(self, outputs: Sequence[str]) -> "ExperimentSpec":
         """The spec with ``targets = "all"`` resolved to the dataset's output columns (unchanged otherwise)."""
@@ -259,7 +265,7 @@ class ExperimentSpec:
     def config_hash(self) -> str:
         """Hash of everything that determines the results (the name and description excluded)."""
         d = self.to_dict()
-        d.pop("name"), d.pop("description")
+        d.pop("name"), d.pop("description"), d.pop("slurm", None)
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
 
     def with_overrides(self, **changes: Any) -> "ExperimentSpec":
@@ -336,6 +342,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         method_options={k: dict(v) for k, v in method_options.items()},
         description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
         init_samples=init_samples, all_targets=all_targets, joint_targets=v["joint_targets"],
+        slurm=check_slurm(v["slurm"], methods, origin),
     )
 
 

@@ -330,15 +330,21 @@ def to_html(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
     return f'<table class="enginebench">\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n' + notes
 
 
-def to_csv(summary: pd.DataFrame, *, units: Mapping[str, str] | None = None) -> str:
-    """The long summary as csv, one value per cell: the window column is ``Delta [s]`` as in the other formats,
-    and ``unit`` (after ``metric``) is each row's metric unit ("" when unknown, e.g. mae of a run without units)."""
+def long_table(summary: pd.DataFrame, *, units: Mapping[str, str] | None = None) -> pd.DataFrame:
+    """The long summary as the csv holds it: the window column is ``Delta [s]`` as in the other formats, and
+    ``unit`` (after ``metric``) is each row's metric unit ("" when unknown, e.g. mae of a run without units).
+    ``enginebench.api``'s ``Run.table`` is this frame with tidier column names."""
     u = units or {}
     out = summary.rename(columns={"window": WINDOW})
     if "metric" in out.columns:
         unit = [metric_unit(str(m), u.get(str(t), "")) for m, t in zip(out["metric"], out["target"])]
         out.insert(out.columns.get_loc("metric") + 1, "unit", unit)
-    return out.to_csv(index=False)
+    return out
+
+
+def to_csv(summary: pd.DataFrame, *, units: Mapping[str, str] | None = None) -> str:
+    """The long summary as csv, one value per cell (``long_table``)."""
+    return long_table(summary, units=units).to_csv(index=False)
 
 
 BLOCK = ["target", "mode", "window", "split"]
