@@ -94,7 +94,9 @@ def _register() -> None:
     cli.add_command(layout.layout)
     cli.add_command(layout.plots)
     cli.add_command(report.report)
-    cli.add_command(report.export)
+    from enginebench.cli import export as export_cmd
+
+    cli.add_command(export_cmd.export)  # --fmu, and --mlflow (report.export)
 
 
 _register()

@@ -19,12 +19,21 @@ def methods_list(plugins) -> None:
     from enginebench.registry import available, broken
 
     load_plugins(plugins)
+    from enginebench.results.term import grid
+
     found, bad = available(), broken()
-    width = max([14, *(len(n) for n in (*found, *bad))])  # every name aligned, however long
-    for name, cls in found.items():
-        click.echo(f"{name:<{width}} {cls.family:<12} {','.join(sorted(cls.modes)):<24} {cls.summary}")
-    for name, why in bad.items():
-        click.echo(f"{name:<{width}} {'BROKEN':<12} {'-':<24} {why}")
+    rows = [(name, cls.family, ", ".join(sorted(cls.modes)), cls.summary) for name, cls in found.items()]
+    rows += [(name, "BROKEN", "-", why) for name, why in bad.items()]
+    click.echo(grid(("method", "family", "modes", "summary"), rows, no_wrap=(True, True, False, False),
+                    max_width=(None, None, 11, None)), nl=False)
+
+
+def _wrapped(paragraph: str) -> str:
+    from enginebench.results.term import note_text
+
+    if any(line.startswith((" ", "-", "*")) for line in paragraph.splitlines()):
+        return paragraph + "\n"
+    return note_text([paragraph], hang="")
 
 
 @methods.command("show")
@@ -35,21 +44,30 @@ def methods_show(name: str, plugins) -> None:
     import inspect
 
     from enginebench.registry import get
+    from enginebench.results.term import grid, note_text
 
     load_plugins(plugins)
     cls = get(name)
     joint = "; joint targets: yes" if getattr(cls, "joint_targets", False) else ""
-    click.echo(f"{cls.name}  ({cls.family}; modes: {', '.join(sorted(cls.modes))}{joint})")
-    click.echo(f"class: {cls.__module__}.{cls.__qualname__}")
+    click.echo(note_text([f"{cls.name}  ({cls.family}; modes: {', '.join(sorted(cls.modes))}{joint})",
+                          f"class: {cls.__module__}.{cls.__qualname__}"]), nl=False)
     own = cls.__dict__.get("__doc__")  # inspect.getdoc would give a base class's docstring to a class without one
     doc = inspect.cleandoc(own) if own else cls.summary
-    if doc:
-        click.echo("\n" + doc)
+    if doc:  # each paragraph wrapped to the terminal; an indented block (an example) kept as written
+        click.echo("\n" + "\n".join(_wrapped(part) for part in doc.split("\n\n")), nl=False)
     rows = cls.option_declaration().rows()
     if rows:
         key = cls.name if cls.name.replace("-", "").replace("_", "").isalnum() else f'"{cls.name}"'
         click.echo(f"\noptions (set them in the experiment's [methods.{key}] table):")
-        head = ("option", "type", "default", "unit", "meaning")
-        widths = [max(len(r[i]) for r in (head, *rows)) for i in range(4)]
-        for row in (head, *rows):
-            click.echo("  " + "  ".join(cell.ljust(w) for cell, w in zip(row, widths)) + "  " + row[4])
+        click.echo(grid(("option", "type", "default", "unit", "meaning"), rows, no_wrap=(True, False, False, True, False),
+                        max_width=(None, 14, 12, None, None), indent=2), nl=False)
+    click.echo("\n" + note_text([export_line(cls)]), nl=False)
+
+
+def export_line(cls) -> str:
+    """Whether the method's fitted models can be exported (``enginebench export``) and stored (docs/models.md)."""
+    from enginebench.methods.export import exportable
+
+    if exportable(cls) and "simulation" in cls.modes:
+        return "export: FMU (FMI 2.0 co-simulation from its C step: enginebench export RUN --method NAME --fmu OUT.fmu)"
+    return "export: none (this method offers no C step to build an FMU from)"

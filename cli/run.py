@@ -35,12 +35,14 @@ if TYPE_CHECKING:
               help="A [slurm] setting of --executor slurm over the experiment's (repeatable): partition, time, cpus, "
                    "memory, max_parallel, account, qos, setup, cluster...")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.option("--keep-models", is_flag=True, help="Store each job's fitted model in the run (as [store] models = true; "
+              "docs/models.md): `enginebench export` and `enginebench.api.load_model` read them.")
 @click.option("--tag", "tags", multiple=True, metavar="KEY=VALUE",
               help="Label the run (repeatable); kept in its run.json, not in its config; `runs list --tag` filters on it.")
 @store_option
 @plugin_option
 def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, executor, scheduler, slurm_options, quiet,
-        tags, store, plugins) -> None:
+        keep_models, tags, store, plugins) -> None:
     """Run EXPERIMENT (a built-in name or a .toml file) and store it as a run.
 
     Every finished job is written to the run store at once, so an interrupted run keeps
@@ -67,7 +69,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     store_obj = RunStore(store)
     resume = spec = None
     if resume_ref:
-        if experiment or repeats or methods or seed is not None or train_size is not None:
+        if experiment or repeats or methods or seed is not None or train_size is not None or keep_models:
             raise SpecError("--resume RUN takes the run's own config; give no EXPERIMENT or overrides with it")
         if tag_map:
             raise SpecError(f"--tag is for a new run; tag {resume_ref} with `enginebench runs tag {resume_ref} KEY=VALUE`")
@@ -78,6 +80,8 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     else:
         spec = load_spec(experiment)
         overrides = {"repetitions": repeats, "seed": seed, "train_size": train_size}
+        if keep_models:
+            overrides["store"] = {**spec.store, "models": True}
         if methods:
             overrides["methods"] = [m.strip() for m in methods.split(",") if m.strip()]
             overrides["method_options"] = {k: v for k, v in spec.method_options.items() if k in overrides["methods"]}
@@ -121,8 +125,9 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
         out.print(f"[yellow]job file {key}.parquet was damaged ({why}); it was computed again[/yellow]")
     from enginebench.results.notes import run_note_lines
 
-    for line in run_note_lines(result.run):
-        click.echo(line)  # not through rich: a reason is one line, never wrapped
+    from enginebench.results.term import note_text
+
+    click.echo(note_text(run_note_lines(result.run)), nl=False)  # each once, wrapped to the terminal
     if result.n_failed:
         out.print(f"[yellow]{result.n_failed} of {result.n_jobs} jobs failed; 'enginebench runs show {result.run.id}' "
                   "lists the reasons.[/yellow]")

@@ -66,6 +66,8 @@ def runs_show(run_ref: str, store) -> None:
     from enginebench.results.picks import picks_frame, picks_lines
     from enginebench.results.store import open_run
     from enginebench.results.tables import summarize
+    from enginebench.results.term import note_text
+    from enginebench.results.units import run_units
 
     run = open_run(run_ref, store)
     info, cfg, env = run.info(), run.config(), run.environment()
@@ -73,33 +75,86 @@ def runs_show(run_ref: str, store) -> None:
     # read first: a damaged job file (or jobs folder) is the only line printed
     metrics = run.metrics() if run.job_files() or run.damage() else None
     notes = run_note_lines(run)
-    click.echo(f"run {run.id}: {info.get('status')} ({len(run.job_files())}/{info.get('n_jobs')} jobs, "
-               f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash {info.get('config_hash', '')[:12]}")
-    click.echo(f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets {cfg.get('targets')}; "
-               f"mode {cfg.get('mode')}, windows {cfg.get('windows')}; {cfg.get('repetitions')} repetitions, seed {cfg.get('seed')}")
+    head = [f"run {run.id}: {info.get('status')} ({len(run.job_files())}/{info.get('n_jobs')} jobs, "
+            f"{info.get('failed_jobs', 0)} failed), created {info.get('created')}, config hash "
+            f"{info.get('config_hash', '')[:12]}",
+            f"experiment: {cfg.get('name')} on {cfg.get('dataset')} {cfg.get('dataset_variant', '')}; targets "
+            f"{', '.join(map(str, cfg.get('targets') or []))}; mode {cfg.get('mode')}, windows "
+            f"{', '.join(f'{float(w):g} s' for w in cfg.get('windows') or [])}; {cfg.get('repetitions')} repetitions, "
+            f"seed {cfg.get('seed')}"]
     if info.get("tags"):
-        click.echo("tags: " + ", ".join(f"{k}={v}" for k, v in info["tags"].items()))
-    click.echo(f"environment: python {env.get('python')}, {env.get('cpu')} x{env.get('cpu_count')}, gpu {env.get('gpu')}, "
-               f"git {env.get('git_commit')}")
-    click.echo("packages: " + json.dumps(env.get("packages", {})))
-    for rec in plugins:
-        click.echo(f"plugin file: {rec.get('path')} (sha256 {str(rec.get('sha256'))[:12]}; "
-                   f"methods {', '.join(map(str, rec.get('methods', [])))})")
+        head.append("tags: " + ", ".join(f"{k}={v}" for k, v in info["tags"].items()))
+    head.append(f"environment: python {env.get('python')}, {env.get('cpu')} x{env.get('cpu_count')}, gpu "
+                f"{env.get('gpu')}, git {env.get('git_commit')}")
+    head.append("packages: " + ", ".join(f"{k} {v}" for k, v in (env.get("packages") or {}).items()))
+    head += [f"plugin file: {rec.get('path')} (sha256 {str(rec.get('sha256'))[:12]}; "
+             f"methods {', '.join(map(str, rec.get('methods', [])))})" for rec in plugins]
+    click.echo(note_text(head, hang="  "), nl=False)
     if notes:
         click.echo("\nwhat the jobs said (distinct failure reasons and warnings, with counts):")
-        for line in notes:
-            click.echo("  " + line)
+        click.echo(note_text(notes, indent="  "), nl=False)
     if metrics is None:
         click.echo("\nno finished job yet")
         return
-    times = metrics[metrics["metric"].str.startswith("time_")].groupby(["method", "metric"])["value"].mean().unstack()
-    click.echo("\nmean seconds per job:\n" + times.round(3).to_string())
+    times = _times_table(metrics)
+    click.echo("\n" + times if times else "", nl=False)
+    click.echo(_realtime_table(metrics), nl=False)
     summary = summarize(metrics, interval=cfg.get("interval", "t"))
-    main = summary[summary["metric"].isin(["mae", "rmae"])][["target", "window", "split", "method", "metric", "mean", "ci_low", "ci_high", "n_repeats", "n_failed"]]
-    click.echo("\n" + main.to_string(index=False))
+    click.echo("\n" + _summary_table(summary, run_units(info), cfg.get("interval", "t")), nl=False)
     click.echo("\nselected hyperparameters (`enginebench table RUN --picks` lists every job):")
-    for line in picks_lines(picks_frame(run)):
-        click.echo("  " + line)
+    click.echo(note_text(picks_lines(picks_frame(run)), indent="  "), nl=False)
+
+
+def _realtime_table(metrics) -> str:
+    """One model step over the test part per method (simulation runs; results/realtime.py), or nothing."""
+    from enginebench.results.realtime import realtime_frame
+    from enginebench.results.term import grid
+
+    rt = realtime_frame(metrics)
+    if rt.empty:
+        return ""
+    rows = [[r.method, str(r.jobs), f"{r.median_us:.3g}", f"{r.p99_us:.3g}", f"{r.worst_us:.3g}", f"{r.rt_factor:.3g}"]
+            for r in rt.itertuples()]
+    return ("\none model step over the test part (measured on this run's machine; median of the jobs, largest p99 "
+            "and worst):\n" + grid(["method", "jobs", "median [us]", "p99 [us]", "worst [us]", "dt / worst"], rows,
+                                   right=[False] + [True] * 5))
+
+
+def _times_table(metrics) -> str:
+    """Mean seconds per job of each method and timed step (fit, select, predict ...), one row per method."""
+    from enginebench.results.term import grid
+
+    times = metrics[metrics["metric"].str.startswith("time_")].groupby(["method", "metric"])["value"].mean().unstack()
+    steps = list(times.columns)
+    if not steps:
+        return ""
+    header = ["method", *(f"{c[len('time_'):].removesuffix('_s').replace('_', ' ')} [s]" for c in steps)]
+    rows = [[m, *(f"{v:.3g}" if v == v else "" for v in times.loc[m, steps])] for m in times.index]
+    return "mean seconds per job:\n" + grid(header, rows, right=[False] + [True] * len(steps))
+
+
+def _summary_table(summary, units: dict[str, str], interval: str) -> str:
+    """The main metrics (mae, rmae) per target, window, split and method: mean and interval, 4 significant digits,
+    the metric's unit in its column."""
+    from enginebench.results.compare import num
+    from enginebench.results.term import grid, note_text
+
+    main = summary[summary["metric"].isin(["mae", "rmae"])]
+    keys = {"target": "target", "window": "window [s]", "split": "split"}
+    fixed = [k for k in keys if len(main) and main[k].nunique() == 1]  # said once above the table
+    shown = [k for k in keys if k not in fixed]
+    header = [keys[k] for k in shown] + ["method", "metric [unit]", "mean", "95% interval", "n", "failed"]
+    rows = []
+    for r in main.itertuples():
+        unit = "%" if r.metric == "rmae" else units.get(str(r.target), "")
+        rows.append([f"{float(r.window):g}" if k == "window" else str(getattr(r, k)) for k in shown]
+                    + [r.method, f"{r.metric} [{unit}]" if unit else r.metric, num(r.mean),
+                       f"[{num(r.ci_low)}, {num(r.ci_high)}]", str(int(r.n_repeats)), str(int(r.n_failed))])
+    what = "bootstrap percentile" if interval == "bootstrap" else "Student-t"
+    where = "; ".join(f"{k} {float(main[k].iloc[0]):g} s" if k == "window" else f"{k} {main[k].iloc[0]}" for k in fixed)
+    return (note_text([f"mean and {what} 95% interval over repetitions (n){'; ' + where if where else ''}:"])
+            + grid(header, rows, right=[k == "window" for k in shown] + [False, False, True, False, True, True],
+                   no_wrap=[False] * len(shown) + [True, True, True, False, True, True]))
 
 
 def _edited(run, tags: dict[str, str]) -> None:

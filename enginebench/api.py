@@ -25,6 +25,9 @@ scores behind them (docs/runs.md)::
     result = run("marine-diesel-egt-quick", methods=["naive-mean", "ridge"], repetitions=2)
     result.table(metrics=["mae"])             # method, target, Delta, split, metric, mean, low, high, n...
     open_run("latest").jobs()                 # one row per job: status, reason, param:<name>, time:<name>
+
+A model a run stored (``run --keep-models``; docs/models.md) opens with ``load_model(path)``: a
+``StoredModel`` whose ``simulate(u, y_init)`` or ``predict(X)`` gives what the run's job gave.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from enginebench.errors import DataError, EngineBenchError, MethodError, SpecErr
 from enginebench.method import (
     FAMILIES, Method, Params, SearchSpace, SegmentPredictions, check_log_grid_option, grid_points, log_grid, split_rows,
 )
+from enginebench.results.model_store import StoredModel, load_model
 from enginebench.results.picks import folds_frame, picks_frame
 from enginebench.runs import TABLE_COLUMNS, Run, open_run, run
 from enginebench.samples import Samples, SegmentSamples
@@ -60,12 +64,14 @@ __all__ = [
     "SegmentSamples",
     "SpecError",
     "StoreError",
+    "StoredModel",
     "TABLE_COLUMNS",
     "check_log_grid_option",
     "check_method",
     "declare",
     "folds_frame",
     "grid_points",
+    "load_model",
     "log_grid",
     "open_run",
     "picks_frame",

@@ -20,6 +20,7 @@ import pandas as pd
 
 from enginebench.datasets.pools import SamplePool
 from enginebench.errors import MethodError
+from enginebench.experiments.keep import after_test
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.method import Method
@@ -333,10 +334,12 @@ def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, met
                     refit_on_validation=fit_on is not train)
         if warnings:
             meta["warnings"] = warnings
+        predicted: dict[str, list[np.ndarray]] = {}
         for part_name, part in problem.parts.items():
             t0 = time.perf_counter()
             truth_all, guess_all, diverged = predict_part(method, fitted, part, spec.mode)
             timings[f"predict_{part_name}_s"] = time.perf_counter() - t0
+            predicted[part_name] = guess_all
             for k, name in enumerate(part.target_names):
                 truth = [y[:, k] for y in truth_all]
                 guess = [g[:, k] for g in guess_all]
@@ -355,6 +358,8 @@ def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, met
                     rows.append({**base, "target": name, "split": part_name, "metric": metric, "value": float(value)})
                 if notes:
                     meta.setdefault("notes", {}).update({f"{part_name}:{k}": v for k, v in notes.items()})
+        for row in after_test(spec, job, method, fitted, problem, params, meta, predicted, timings):  # experiments/keep.py
+            rows.append({**base, "split": "test", **row})
         meta["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - whatever method code raises is that job's failure, with its reason
         rows = []

@@ -318,3 +318,9 @@ class ARX(GivenOrders, Method):
             "regression_rows": fitted.n_rows,
             "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
         }
+
+    def c_model(self, fitted):
+        """The C step of ``fitted`` for an FMU and the real-time figures (``methods/export``)."""
+        from enginebench.methods.export.models import arx_c
+
+        return arx_c(fitted)

@@ -31,6 +31,12 @@ class NaiveMean(Method):
     def describe(self, fitted: np.ndarray) -> dict[str, Any]:
         return {"mean": fitted.tolist()}
 
+    def c_model(self, fitted: np.ndarray) -> Any:
+        """The C step of ``fitted`` for an FMU and the real-time figures (``methods/export``)."""
+        from enginebench.methods.export.models import naive_mean_c
+
+        return naive_mean_c(fitted)
+
 
 class NaiveLast(Method):
     """Last-value persistence: y(t) is predicted by the measured y(t - dt) (window mode)."""

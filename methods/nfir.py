@@ -216,3 +216,9 @@ class NFIR(InputHistory, KRLS):
             for idx, block in kernel_ridge_grid(Xs, yc, Xe, gammas, lambdas, PREDICT_CHUNK):
                 out[target[idx]] = block * y_scale + y_mean
         return out
+
+    def c_model(self, fitted):
+        """The C step of ``fitted`` for an FMU and the real-time figures (``methods/export``)."""
+        from enginebench.methods.export.models import nfir_c
+
+        return nfir_c(fitted)

@@ -8,6 +8,7 @@ Layout of a run folder (the store of them is ``results.store.RunStore``)::
       environment.json                package versions, git commit, CPU/GPU, seeds
       jobs/<job-key>.parquet          metric rows of one finished job (``results.job_files``)
       selection/<job-key>.parquet     the job's model-selection scores, for jobs that selected
+      models/<job-key>.npz            the job's fitted model, with [store] models = true (results.model_store)
 
 Every file is written atomically (``results.atomic``) under the run's write lock
 (``results.run_lock``); damaged job files and selection tables are checked in
@@ -34,6 +35,7 @@ finished jobs, for every plan the runner executes (an experiment, a learning cur
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import time
@@ -47,6 +49,7 @@ import pyarrow as pa
 from enginebench.errors import StoreError
 from enginebench.results import run_lock
 from enginebench.results.atomic import READ_ERRORS, atomic_write_bytes, damage_text, read_parquet, table_bytes, write_failed
+from enginebench.results.model_store import MODEL_META, MODELS_DIR
 from enginebench.results.job_files import (
     SELECTION_DIR, SELECTION_META, encode_job, jsonable, load_job, read_selection, selection_bytes, selection_frame,
 )
@@ -349,10 +352,17 @@ class Run:
         table's write fails the job file is removed again, so a job is finished only with
         both (a kill between the two leaves a job that ``damaged_jobs`` lists).
         """
+        model = meta.get(MODEL_META)  # a stored model (results/model_store.py): written first, its SHA-256 recorded
+        if model is not None:
+            meta = {k: v for k, v in meta.items() if k != MODEL_META}
+            meta["model_file"] = {"sha256": hashlib.sha256(model).hexdigest(), "bytes": len(model)}
         job, data = encode_job(rows, meta)
         path = self.jobs_dir / f"{key}.parquet"
         selection_path = self.selection_dir / f"{key}.parquet"
         with self._writing():
+            if model is not None:
+                (self.path / MODELS_DIR).mkdir(exist_ok=True)
+                self._write(self.path / MODELS_DIR / f"{key}.npz", model, f"the stored model of job {key} of run {self.id} to")
             self._write(path, job, f"job {key} of run {self.id} to")
             if data is None:
                 with contextlib.suppress(OSError):  # an earlier attempt's table belongs to no job now
