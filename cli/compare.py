@@ -40,6 +40,7 @@ def compare(run_a: str, others: tuple[str, ...], metrics: str, fmt: str, interva
     """
     from enginebench.results.compare import comparison_table, compare_many, many_csv, many_text, statements
     from enginebench.results.store import RunStore
+    from enginebench.results.term import note_text
 
     from enginebench.results.tables import DEFAULT_METRICS, SIMULATION_METRICS
 
@@ -60,7 +61,7 @@ def compare(run_a: str, others: tuple[str, ...], metrics: str, fmt: str, interva
     elif fmt == "csv":
         text = cmps[0].table.to_csv(index=False)
     else:
-        text = comparison_table(cmps[0]) + "\n" + "\n".join(statements(cmps[0])) + "\n"
+        text = comparison_table(cmps[0]) + "\n" + note_text(statements(cmps[0]))
     emit(text, output)
 
 

@@ -49,6 +49,7 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     from enginebench.results import tables
     from enginebench.results.notes import run_note_lines
     from enginebench.results.store import open_run
+    from enginebench.results.term import note_text
     from enginebench.results.units import run_units
 
     check_output(output)
@@ -60,15 +61,16 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
     interval = interval or run.config().get("interval", "t")
     raw = run.metrics()
     if len(raw) and not (raw["status"] == "ok").any():  # nothing to tabulate: say why instead
-        for line in run_note_lines(run, width=200):
-            click.echo(line)
+        click.echo(note_text(run_note_lines(run, width=200), width), nl=False)
         from enginebench.errors import DataError
 
         raise DataError(f"no job of run {run.id} succeeded, so there is no table; the reasons are above")
     summary = tables.summarize(raw, interval=interval)
     if paired_metric is None:
         paired_metric = tables.default_paired_metric(str(run.config().get("mode", "")))
-    cols = all_metrics(summary) if _is_all(metrics) else split_list(metrics) or None
+    from enginebench.results.realtime import expand_rt
+
+    cols = all_metrics(summary) if _is_all(metrics) else expand_rt(split_list(metrics)) or None  # rt: the step times
     if cols:
         check_metrics(cols, summary["metric"], "--metrics", run.id)
     if paired_metric:
@@ -82,8 +84,8 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
         tests = tables.paired_tests(raw, paired_metric) if paired_metric else None
         if paired_metric:
             click.echo(paired_lines(tests, paired_metric, console.width))
-        for line in notes:
-            click.echo(line)  # not through rich: a reason is one line, never wrapped
+        if notes:
+            click.echo(note_text(notes, width), nl=False)  # each once, wrapped to the terminal or --width
         _verdict(run, raw, summary, tests, paired_metric, console.width)
         return
     text = {

@@ -32,7 +32,6 @@ from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
-import scipy.stats
 
 from enginebench.errors import DataError
 from enginebench.results.metrics import METRICS
@@ -107,7 +106,9 @@ def welch_interval(a: Sequence[float], b: Sequence[float], level: float = 0.95) 
     if se2 == 0.0:
         return diff, float("nan"), float("nan")
     df = se2**2 / (va**2 / (x.size - 1) + vb**2 / (y.size - 1))
-    half = float(scipy.stats.t.ppf(0.5 * (1.0 + level), df) * np.sqrt(se2))
+    import scipy.special  # the Student-t quantile (scipy.stats.t.ppf) without scipy.stats' import
+
+    half = float(scipy.special.stdtrit(df, 0.5 * (1.0 + level)) * np.sqrt(se2))
     return diff, diff - half, diff + half
 
 
@@ -117,6 +118,8 @@ def _unpaired_tests(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
         if a[0] == b[0]:
             return 1.0, 1.0
         return float("nan"), float("nan")  # copies on both sides: no variance to test against
+    import scipy.stats  # only where two unpaired runs are compared
+
     t_p = float(scipy.stats.ttest_ind(b, a, equal_var=False).pvalue)
     u_p = float(scipy.stats.mannwhitneyu(b, a, alternative="two-sided").pvalue)
     return t_p, u_p
@@ -239,15 +242,13 @@ def num(x: Any, digits: int = 4) -> str:
     return f"{x:.{digits}g}" if np.isfinite(x) else "n/a"
 
 
-def text_table(header: Sequence[str], rows: Sequence[Sequence[str]], right: Sequence[bool] | None = None) -> str:
-    """A plain fixed-width table (readable in CI logs and narrow terminals, no wrapping)."""
-    right = list(right) if right is not None else [False] * len(header)
-    widths = [max([len(h)] + [len(r[i]) for r in rows]) for i, h in enumerate(header)]
+def text_table(header: Sequence[str], rows: Sequence[Sequence[str]], right: Sequence[bool] | None = None,
+               width: int | None = None, keep: int = 0) -> str:
+    """A plain table fitted to ``width`` columns (the terminal's, 80 in a CI log): ``results.term.grid``; the first
+    ``keep`` columns (names) are never wrapped."""
+    from enginebench.results.term import grid
 
-    def line(cells: Sequence[str]) -> str:
-        return "  ".join(c.rjust(w) if r else c.ljust(w) for c, w, r in zip(cells, widths, right)).rstrip()
-
-    return "\n".join([line(header), line(["-" * w for w in widths])] + [line(r) for r in rows]) + "\n"
+    return grid(header, rows, right=right, width=width, no_wrap=[i < keep for i in range(len(header))])
 
 
 def _where(r) -> str:
@@ -318,7 +319,7 @@ def comparison_table(cmp: Comparison, b: str = "B") -> str:
         ])
     caption = ", ".join(f"{k} {float(t[k].iloc[0]):g}" if k == "window" else f"{k} {t[k].iloc[0]}" for k in fixed)
     right = [False] * len(shown) + [True] * 5 + [False]
-    return (caption + "\n" if caption else "") + text_table(header, rows, right)
+    return (caption + "\n" if caption else "") + text_table(header, rows, right, keep=len(shown))
 
 
 # -- several runs against the first ----------------------------------------------------------
@@ -387,20 +388,22 @@ def side_by_side(comparisons: Sequence[Comparison]) -> str:
     caption = ", ".join(f"{k} {float(frame[k].iloc[0]):g}" if k == "window" else f"{k} {frame[k].iloc[0]}"
                         for k in fixed)
     right = [False] * len(shown) + [True] * (1 + 2 * len(comparisons))
-    return (caption + "\n" if caption else "") + text_table(header, rows, right)
+    return (caption + "\n" if caption else "") + text_table(header, rows, right, keep=len(shown))
 
 
 def many_text(comparisons: Sequence[Comparison]) -> str:
     """The report of several runs against the first: who is who, a coverage note per run, the side-by-side table,
     then each run's own comparison with A (its table and statements, as for two runs)."""
+    from enginebench.results.term import note_text
+
     labels = run_labels(len(comparisons) + 1)
     ids = [comparisons[0].run_a] + [c.run_b for c in comparisons]
     lines = ["Runs: " + ", ".join(f"{b} = {i}" for b, i in zip(labels, ids)) + "; each later run is compared with A."]
     lines += [coverage_note(c, b) for c, b in zip(comparisons, labels[1:])]
-    text = "\n".join(lines) + "\n\nSide by side (mean [interval] of each run; X - A: difference of the means):\n"
+    text = note_text(lines) + "\nSide by side (mean [interval] of each run; X - A: difference of the means):\n"
     text += side_by_side(comparisons)
     for c, b in zip(comparisons, labels[1:]):
-        text += f"\n{b} - A:\n" + comparison_table(c, b) + "\n" + "\n".join(statements(c, b)) + "\n"
+        text += f"\n{b} - A:\n" + comparison_table(c, b) + "\n" + note_text(statements(c, b))
     return text
 
 

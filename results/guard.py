@@ -207,7 +207,9 @@ def report(result: GuardResult, run_id: str = "", baseline_path: str = "", all_r
     lines += [f"warning: {w}" for w in result.warnings]
     shown = rows if all_rows else failed
     if shown.empty:
-        return "\n".join(lines) + "\n"
+        from enginebench.results.term import note_text
+
+        return note_text(lines)
     shown = shown.assign(_order=shown["status"].map(STATUS_ORDER.index)).sort_values(
         ["_order", "excess_rel"], ascending=[True, False], kind="stable")
     header = ["status", "target", "mode", "window", "split", "method", "metric", "better", "published mean [interval]",
@@ -223,4 +225,6 @@ def report(result: GuardResult, run_id: str = "", baseline_path: str = "", all_r
     right = [False] * 8 + [True] * 5
     note = ("excess = how far the run's mean is beyond the allowed limit (published interval bound plus tolerance); "
             "positive = regressed")
-    return "\n".join(lines) + "\n\n" + text_table(header, body, right) + note + "\n"
+    from enginebench.results.term import note_text
+
+    return note_text(lines) + "\n" + text_table(header, body, right) + note_text([note])

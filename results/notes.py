@@ -101,13 +101,23 @@ def resume_note_lines(info: dict[str, Any], environment: dict[str, Any]) -> list
     return lines
 
 
+def _edge_warning(text: str) -> tuple[str, str] | None:
+    """(method, hyperparameter) of a job's edge warning ("krls: gamma = 1e+04 selected at the upper edge ..."),
+    None for any other warning."""
+    method, _, rest = text.partition(": ")
+    name, eq, after = rest.partition(" = ")
+    if eq and " " not in name and (" edge" in after or "hard bound" in after):
+        return method, name
+    return None
+
+
 def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
     """Every note on a stored run's jobs: failure reasons and job warnings with their counts
     (``note_lines``), then the run-level grid-edge notes (``edge_note_lines``).
 
     A reason or warning longer than ``width`` characters is cut with "..." (None: whole).
-    Job warnings are kept as the jobs wrote them, so a run whose jobs also warned about
-    an edge pick shows that warning and the grid-edge note.
+    A job's warning about an edge pick (``experiments.selection.edge_warnings``) is left out where the
+    grid-edge note names the same method and hyperparameter: each issue is said once.
     """
     def short(text: str) -> str:
         if width is None:
@@ -116,5 +126,9 @@ def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
         return text if len(text) <= width else text[: width - 3] + "..."
 
     notes = run.job_notes()
+    edges = edge_note_lines(run.job_metas().values())
+    covered = {(m, rest.split(" at the ", 1)[0]) for m, rest in (line.split(": ", 2)[1:3] for line in edges)}
+    notes = {**notes, "warnings": {(m, t): n for (m, t), n in notes.get("warnings", {}).items()
+                                   if _edge_warning(t) not in covered}}  # each edge pick said once: the edge note
     return (resume_note_lines(run.info(), run.environment()) + note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
-            + edge_note_lines(run.job_metas().values()))
+            + edges)

@@ -143,6 +143,15 @@ def _display(frame: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
     return shown.rename(columns=lambda c: c[len(PARAM):] if c.startswith(PARAM) else c)
 
 
+def _grid(shown: pd.DataFrame) -> str:
+    """A ``_display`` frame as a terminal table (``results.term.grid``): words left, numbers right."""
+    from enginebench.results.term import grid
+
+    text = {"target", "split", "status", "job", "method"}
+    return grid([str(c) for c in shown.columns], shown.itertuples(index=False, name=None),
+                right=[c not in text for c in shown.columns])
+
+
 _HOW = {"selected": "selected", "fixed": "fixed: nothing scored", "failed": "failed before choosing"}
 
 
@@ -161,8 +170,8 @@ def picks_text(picks: pd.DataFrame) -> str:
         if (group["status"] != "ok").any():
             columns.append("status")
         hows = ", ".join(_HOW.get(h, h) for h in dict.fromkeys(group["how"]))
-        table = _display(group, columns).rename(columns={"grid_size": "grid"}).to_string(index=False)
-        blocks.append(f"{method} ({n}; {hows}):\n{table}")
+        table = _grid(_display(group, columns).rename(columns={"grid_size": "grid"}))
+        blocks.append(f"{method} ({n}; {hows}):\n{table.rstrip()}")
     return "\n\n".join(blocks) + "\n"
 
 
@@ -211,6 +220,8 @@ RESAMPLED = {"bootstrap": "bootstrap resamples", "kfold": "folds", "validation":
 def folds_text(folds: pd.DataFrame, kind: str | None = None) -> str:
     """The term text of ``folds_frame``: one block per job, its best points ranked (``*`` marks the selected one);
     ``kind`` (the run's selection kind) names the resamples."""
+    from enginebench.results.term import note_text
+
     word = RESAMPLED.get(str(kind), "resamples or folds")
     blocks = []
     for key, group in folds.groupby("job", sort=False):
@@ -225,7 +236,7 @@ def folds_text(folds: pd.DataFrame, kind: str | None = None) -> str:
         columns = ["rank", "point", *[c for c in group.columns if c.startswith(PARAM) and group[c].map(_present).any()],
                    "mean", "sd", *shown]
         text = _display(table, columns).rename(columns=lambda c: c.replace(RESAMPLE, "r", 1))
-        blocks.append(head + "\n" + text.to_string(index=False))
+        blocks.append(note_text([head]) + _grid(text).rstrip())
     return "\n\n".join(blocks) + ("\n" if blocks else "")
 
 

@@ -192,10 +192,12 @@ def paired_ttest(a: object, b: object) -> tuple[float, float]:
     if np.all(d == d[0]):
         return (float("nan"), 1.0) if d[0] == 0.0 else (float("nan"), float("nan"))
     s = max(_pow2(x), _pow2(y))  # the t statistic is scale-free: test the scaled values
-    import scipy.stats
-
-    res = scipy.stats.ttest_rel(x / s, y / s)
-    return float(res.statistic), float(res.pvalue)
+    d = x / s - y / s
+    n = d.size
+    t = float(d.mean() / (d.std(ddof=1) / np.sqrt(n)))
+    # the t distribution's two tails (what scipy.stats.ttest_rel reports), from scipy.special: printing a stored
+    # table with its paired tests does not pay scipy.stats' half-second import
+    return t, float(2.0 * scipy.special.stdtr(n - 1, -abs(t)))
 
 
 def holm(pvalues: object) -> np.ndarray:
@@ -228,6 +230,9 @@ def wilcoxon(a: object, b: object) -> tuple[float, float]:
         return float("nan"), 1.0
     s = max(_pow2(x), _pow2(y))  # ranks of the differences are scale-free: no overflow in x - y
     x, y = x / s, y / s
+    exact = _wilcoxon_exact(x - y)
+    if exact is not None:
+        return exact
     with warnings.catch_warnings():
         # scipy warns when it falls back from the exact distribution (ties/zeros);
         # the fallback is the documented behaviour, not something the user can act on.
@@ -236,6 +241,29 @@ def wilcoxon(a: object, b: object) -> tuple[float, float]:
 
         res = scipy.stats.wilcoxon(x, y)
     return float(res.statistic), float(res.pvalue)
+
+
+def _wilcoxon_exact(d: np.ndarray) -> tuple[float, float] | None:
+    """The signed-rank test's exact two-sided p-value where scipy.stats.wilcoxon uses its exact null distribution
+    (at most 50 differences, none zero, no tied magnitudes): ``(min(W+, W-), p)``; None elsewhere (scipy decides).
+
+    Under the null each rank's sign is a fair coin, so W+ is distributed as the sum of a random subset of
+    1..n: its counts come from one pass per rank over the 2^n subsets' sums."""
+    n = d.size
+    a = np.abs(d)
+    if n > 50 or np.any(a == 0) or np.unique(a).size < n:
+        return None
+    ranks = np.empty(n)
+    ranks[np.argsort(a, kind="stable")] = np.arange(1, n + 1)
+    w_plus = float(ranks[d > 0].sum())
+    top = n * (n + 1) // 2
+    counts = np.zeros(top + 1)
+    counts[0] = 1.0
+    for k in range(1, n + 1):  # subsets of 1..k: those without k, plus those with it (shifted by k)
+        counts[k:] = counts[k:] + counts[:-k].copy()
+    cdf = np.cumsum(counts) / 2.0 ** n
+    w = int(round(min(w_plus, top - w_plus)))
+    return float(min(w_plus, top - w_plus)), float(min(1.0, 2.0 * cdf[w]))
 
 
 def paired_pvalues(a: object, b: object) -> tuple[float, float, str]:

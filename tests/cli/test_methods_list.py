@@ -9,5 +9,6 @@ def test_methods_list_aligns_every_name():
     from enginebench.cli.main import cli
 
     lines = CliRunner().invoke(cli, ["methods", "list"]).output.splitlines()
-    starts = {line.index(line.split()[1], len(line.split()[0])) for line in lines}
+    assert lines[0].split() == ["method", "family", "modes", "summary"] and set(lines[1]) == {"-"}
+    starts = {line.index(line.split()[1], len(line.split()[0])) for line in lines[2:]}
     assert len(starts) == 1 and any(line.startswith("residual-krls-pm ") for line in lines)

@@ -78,7 +78,8 @@ def block(output: str, head: str) -> list[list[str]]:
     for line in lines[start + 1:]:
         if not line.strip():
             break
-        rows.append(line.split())
+        if set(line.strip()) != {"-"}:  # the rule under the header (results.term.grid)
+            rows.append(line.split())
     return rows
 
 

@@ -181,7 +181,7 @@ def test_methods_show_lists_every_option_with_its_meaning():
     assert out.exit_code == 0, out.output
     lines = out.output.splitlines()
     head = next(i for i, line in enumerate(lines) if line.split()[:5] == ["option", "type", "default", "unit", "meaning"])
-    table_ = lines[head + 1:head + 1 + len(KRLS.declared_options.fields)]
+    table_ = lines[head + 2:head + 2 + len(KRLS.declared_options.fields)]  # after the header's rule
     bounds = {"gamma_grid": "; extended at its edges, >= 1e-08 and <= 1e+06 (gamma)",
               "lambda_grid": "; extended at its edges, >= 1e-14 and <= 1e+08 (lambda)"}
     for f, line in zip(KRLS.declared_options, table_):
