@@ -178,6 +178,22 @@ class Method:
         """
         return {}
 
+    def model_state(self, fitted: Any) -> Any:
+        """Optional hook: ``fitted`` as data a stored model holds (``results/model_store.py``): arrays, numbers,
+        text, lists, tuples, str-keyed dicts and dataclasses of them, nothing that runs code when read. The default
+        hands over ``fitted`` itself; a method holding other objects returns their arrays here and rebuilds them
+        in ``model_from_state``, or raises MethodError saying why its models cannot be stored."""
+        return fitted
+
+    def model_from_state(self, state: Any) -> Any:
+        """The fitted model from what ``model_state`` returned (the default: it is the model)."""
+        return state
+
+    def c_model(self, fitted: Any) -> Any:
+        """Optional hook: the fitted model's step as C code (a ``methods.export.CModel``) for an FMU and the
+        real-time figures; None (the default) when the method cannot be exported."""
+        return None
+
     def fit_grid(
         self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> Iterator[tuple[int, Any]]:

@@ -91,6 +91,15 @@ def _roles(value: Any) -> Any:
     return value
 
 
+def _store(value: Any) -> Any:
+    unknown = sorted(set(value) - {"models"})
+    if unknown:
+        raise Invalid(f"[store] knows the key models (true/false), not {', '.join(unknown)}")
+    if not isinstance(value.get("models", False), bool):
+        raise Invalid("[store] models must be true or false, got {value}")
+    return value
+
+
 def _search(value: Any) -> str:
     if not (isinstance(value, str) and value in SEARCHES):
         hint = did_you_mean(value, SEARCHES) if isinstance(value, str) else ""
@@ -130,6 +139,9 @@ TOP = Declaration(
           message="[methods.NAME] entries must be tables of options"),
     whole("init_samples", 0, "simulation mode: samples that set each evaluated segment's state", low=0,
           unit="samples", message="'{name}' must be a whole number of samples >= 0, got {value}"),
+    table("store", {}, "what a run keeps besides its metrics: [store] models = true stores each job's fitted model "
+          "(docs/models.md); not part of the config hash", check=_store,
+          message="'store' must be a table such as [store] models = true"),
     table("slurm", {}, "resources of --executor slurm ([slurm] and [slurm.methods.NAME], experiments/slurm.py); "
           "not part of the config hash", message="'slurm' must be a table such as [slurm] partition = \"cpu\""),
 )
@@ -191,7 +203,7 @@ SPLITS: dict[str, Declaration] = {
 SPLIT_REQUIRED = {"groups": ("column", "test"), "records": ("train", "test")}
 
 
-DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False, "joint_targets": False, "slurm": {}}
+DEFAULT_ONLY_IN_HASH = {"init_samples": 0, "all_targets": False, "joint_targets": False, "slurm": {}, "store": {}}
 """Keys added after runs were published: left out of ``to_dict`` (so of the config hash) at their default."""
 SELECTION_DEFAULT_ONLY_IN_HASH = {"refit": True, "search": "grid", "trials": 50, "extend": True}
 """The same for [selection] keys: earlier runs' configs (and hashes) stay as they were."""
@@ -242,6 +254,13 @@ class ExperimentSpec:
     slurm: dict[str, Any] = field(default_factory=dict)
     """The ``[slurm]`` table: where ``--executor slurm`` runs each method's jobs; kept in the run's config (so a
     resume asks for the same resources) but not in its config hash (it never changes a result)."""
+    store: dict[str, Any] = field(default_factory=dict)
+    """The ``[store]`` table: ``models = true`` keeps each job's fitted model (``experiments/keep.py``)."""
+
+    @property
+    def store_models(self) -> bool:
+        """``[store] models = true``: every job stores its fitted model (``run --keep-models`` sets it)."""
+        return bool(self.store.get("models", False))
 
     def with_outputs(self, outputs: Sequence[str]) -> "ExperimentSpec":
         """The spec with ``targets = "all"`` resolved to the dataset's output columns (unchanged otherwise)."""
@@ -265,7 +284,7 @@ class ExperimentSpec:
     def config_hash(self) -> str:
         """Hash of everything that determines the results (the name and description excluded)."""
         d = self.to_dict()
-        d.pop("name"), d.pop("description"), d.pop("slurm", None)
+        d.pop("name"), d.pop("description"), d.pop("slurm", None), d.pop("store", None)
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
 
     def with_overrides(self, **changes: Any) -> "ExperimentSpec":
@@ -342,7 +361,7 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
         method_options={k: dict(v) for k, v in method_options.items()},
         description=str(raw.get("description", "")), dataset_variant=str(raw.get("dataset_variant", "")),
         init_samples=init_samples, all_targets=all_targets, joint_targets=v["joint_targets"],
-        slurm=check_slurm(v["slurm"], methods, origin),
+        slurm=check_slurm(v["slurm"], methods, origin), store=dict(v["store"]),
     )
 
 
