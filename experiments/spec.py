@@ -28,6 +28,9 @@ Format (every key but ``dataset``, ``targets`` and ``methods`` has a default)::
     trials = 50                         # points tried by random and bayes
     extend = true                       # grid search: go past a grid's edge up to the declared bounds
 
+    [store]
+    models = false                      # true: keep each job's fitted model (docs/models.md; run --keep-models)
+
     [methods.krls]                      # constructor options of a method
     gamma_grid = [-4, 4, 41]
 """
