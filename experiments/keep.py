@@ -24,10 +24,6 @@ import numpy as np
 from enginebench.errors import EngineBenchError
 from enginebench.results.model_store import MODEL_META, encode_model
 
-RT_METRICS = ("rt_median_us", "rt_p99_us", "rt_worst_us", "rt_factor")
-"""The real-time metric rows of a simulation job (``table --metrics rt`` expands to them)."""
-
-
 def realtime_figures(method: Any, fitted: Any, test: Any, predict_s: float | None) -> dict[str, Any]:
     """One step's time over the whole test part ``test`` (``Samples``) as ``step_figures`` gives it."""
     from enginebench.methods.export.harness import CStep, compiler, step_figures
