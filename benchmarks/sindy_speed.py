@@ -38,8 +38,9 @@ from enginebench.datasets.splits import make_splits
 from enginebench.experiments.selection import record_blocks
 from enginebench.method import grid_points
 from enginebench.methods import sindy as sindy_module
-from enginebench.methods.sindy import SINDy, initial_state, simulate_batch
+from enginebench.methods.sindy import SINDy, initial_state
 from enginebench.methods.sindy_grid import clear_segment_cache
+from enginebench.methods.sindy_library import simulate_batch
 
 FOLDS, INIT = 3, 50
 

@@ -85,7 +85,8 @@ def guard(run_ref: str, baseline: str, tolerance: str, strict: bool, all_rows: b
     repetitions than published fails too. Bad input exits 2.
     """
     from enginebench.experiments.run_dataset import run_dataset
-    from enginebench.results.guard import guard_run, load_baseline, parse_tolerance, report
+    from enginebench.results.baseline import load_baseline
+    from enginebench.results.guard import guard_run, parse_tolerance, report
     from enginebench.results.store import RunStore
 
     tol = parse_tolerance(tolerance)
@@ -113,7 +114,7 @@ def publish(run_ref: str, output: str, metrics: str, interval, measure: bool, st
     another machine, measured by rerunning the experiment (see --measure-tolerance).
     """
     from enginebench.experiments.run_dataset import run_dataset
-    from enginebench.results.guard import make_baseline, write_baseline
+    from enginebench.results.baseline import make_baseline, write_baseline
     from enginebench.results.store import RunStore
 
     check_output(output)

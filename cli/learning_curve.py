@@ -12,7 +12,7 @@ from enginebench.cli.progress import JobProgress
 from enginebench.experiments.executors import EXECUTORS
 
 if TYPE_CHECKING:
-    from enginebench.results.store import Run
+    from enginebench.results.run_folder import Run
 
 
 @click.command("learning-curve")

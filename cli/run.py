@@ -13,7 +13,8 @@ from enginebench.cli.progress import JobProgress
 from enginebench.experiments.executors import EXECUTORS
 
 if TYPE_CHECKING:
-    from enginebench.results.store import Run, RunStore
+    from enginebench.results.run_folder import Run
+    from enginebench.results.store import RunStore
 
 
 @click.command()
@@ -55,7 +56,8 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore
     from enginebench.cli.table import paired_lines
-    from enginebench.results.tables import paired_tests, summarize, to_rich
+    from enginebench.results.summary import paired_tests, summarize
+    from enginebench.results.tables import to_rich
 
     from enginebench.errors import SpecError
 

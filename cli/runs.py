@@ -65,7 +65,7 @@ def runs_show(run_ref: str, store) -> None:
     from enginebench.results.notes import run_note_lines
     from enginebench.results.picks import picks_frame, picks_lines
     from enginebench.results.store import open_run
-    from enginebench.results.tables import summarize
+    from enginebench.results.summary import summarize
     from enginebench.results.term import note_text
     from enginebench.results.units import run_units
 

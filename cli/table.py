@@ -138,7 +138,8 @@ def all_metrics(summary) -> list[str]:
 
 
 def _by_record(run, metrics: list[str], fmt: str, output, width) -> None:
-    from enginebench.results.records import PER_SEGMENT, record_frame, record_table, to_rich
+    from enginebench.results.metrics import PER_SEGMENT
+    from enginebench.results.records import record_frame, record_table, to_rich
     from enginebench.results.units import run_units
 
     metric = metrics[0] if metrics else ("nrmse" if run.config().get("mode") == "simulation" else "mae")

@@ -88,7 +88,7 @@ import pandas as pd
 
 from enginebench.datasets.column_notes import SideColumn, side_column_notes
 from enginebench.datasets.dataset import SEGMENT, Dataset
-from enginebench.datasets.import_spec import ALLOWED_KEYS, ImportSpec, RecordSpec, load_spec, one_line, spec_from_dict
+from enginebench.datasets.import_spec import ImportSpec, load_spec
 from enginebench.datasets.readers import FileTable, FileUse, file_uses, read_file, too_few_rows
 from enginebench.datasets.schema import Column, Schema
 from enginebench.datasets.validate import (
@@ -100,9 +100,9 @@ from enginebench.datasets.validate import (
 )
 from enginebench.errors import DataError
 
-__all__ = ["import_spec", "import_table",
-           # the spec's public names, still importable from here
-           "ALLOWED_KEYS", "ImportSpec", "RecordSpec", "load_spec", "one_line", "spec_from_dict"]
+__all__ = [
+    "import_spec", "import_table"
+]
 
 
 # -- one record source: a file of files, or a [records] table ---------------------------------------

@@ -27,7 +27,7 @@ from enginebench.experiments.jobs import JOINT, Context, Job, Problem, joint_met
 from enginebench.experiments.search import check_search
 from enginebench.experiments.selection import record_blocks
 from enginebench.experiments.spec import ExperimentSpec
-from enginebench.results.store import ResumeState, Run
+from enginebench.results.run_folder import ResumeState, Run
 
 
 ProgressFn = Callable[[int, int, Job], None]

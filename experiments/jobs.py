@@ -24,8 +24,8 @@ from enginebench.experiments.keep import after_test
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import ExperimentSpec
 from enginebench.method import Method
+from enginebench.results.job_files import SELECTION_META
 from enginebench.results.metrics import compute_metrics, mean_abs, per_segment
-from enginebench.results.store import SELECTION_META
 from enginebench.samples import Samples
 
 

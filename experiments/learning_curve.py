@@ -50,8 +50,9 @@ from enginebench.experiments.engine import (
 from enginebench.experiments.executors import check_executor
 from enginebench.experiments.jobs import Context, Job, Problem
 from enginebench.experiments.spec import ExperimentSpec, from_dict
+from enginebench.results.run_folder import Run
 from enginebench.results.stats import t_interval
-from enginebench.results.store import Run, RunStore
+from enginebench.results.store import RunStore
 
 MONTH_S = 365.25 / 12.0 * 86400.0
 """One month of the time axis, seconds (a mean calendar month)."""

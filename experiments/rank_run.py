@@ -12,7 +12,7 @@ from enginebench.experiments.jobs import JOINT, stable_int, subsample
 from enginebench.experiments.ranking import rank_features
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 
 
 def rank_run(run: Run, methods: list[str] | None = None, repetition: int = 0) -> Iterator[tuple[str, pd.DataFrame]]:

@@ -25,7 +25,8 @@ from enginebench.experiments.jobs import JOINT, Context, Problem, joint_methods
 from enginebench.experiments.learning_curve import curve_settings, prepare_curve
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.method import TrainingShape
-from enginebench.results.store import Run, RunStore
+from enginebench.results.run_folder import Run
+from enginebench.results.store import RunStore
 
 
 def prepare(spec: ExperimentSpec) -> Context:

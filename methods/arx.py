@@ -42,9 +42,6 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
-from threadpoolctl import threadpool_limits
 
 from enginebench.declare import Declaration, whole
 from enginebench.errors import MethodError
@@ -109,6 +106,9 @@ def least_squares(Phi: np.ndarray, y: np.ndarray) -> np.ndarray:
     Single-threaded BLAS: on the shared 2-core machine a threaded gelsd of 58,000 x 65 took
     2.2 s, one thread 0.5 s.
     """
+    import scipy.linalg  # here, not at the top: listing methods imports no scipy
+    from threadpoolctl import threadpool_limits
+
     scale = np.abs(Phi).max(axis=0)
     scale[scale == 0] = 1.0
     with threadpool_limits(limits=1, user_api="blas"):
@@ -136,6 +136,8 @@ def simulate(a: np.ndarray, b: np.ndarray, c: float, nk: int, U: np.ndarray, win
         out[N:] = v[N:]
         return out
     past = padded_past(window, na)[::-1][:na]  # y(N-1), y(N-2), ..., y(N-na)
+    import scipy.signal  # here, not at the top: scipy.signal imports scipy.stats (seconds)
+
     A = np.r_[1.0, -a]
     zi = scipy.signal.lfiltic([1.0], A, past)
     with np.errstate(all="ignore"):

@@ -36,7 +36,7 @@ every upstream hyperparameter is fixed there is no inner search.
 
 The parts a cascade is built from (component classes, the samples each component sees,
 the initial-value estimate, the holdout search, the fitted records) are
-``cascade_components.py``; their names stay importable from here.
+``cascade_components.py``.
 """
 
 from __future__ import annotations
@@ -48,14 +48,14 @@ import numpy as np
 from enginebench.declare import Declaration, Invalid, anything, choice, number, table, text
 from enginebench.errors import MethodError
 from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, grid_points
-from enginebench.methods.cascade_components import (CascadeFitted, Initialiser, UpstreamFitted, component_class,
-                                                    holdout_search, initial_features, intermediate_values,
-                                                    segment_mae, target_samples, upstream_signals, with_inputs)
+from enginebench.methods.cascade_components import (
+    CascadeFitted, Initialiser, UpstreamFitted, component_class, holdout_search, initial_features, intermediate_values, target_samples, upstream_signals, with_inputs,
+)
 from enginebench.samples import Samples
 
-__all__ = ["OPTIONS", "SOURCES", "TRAIN_ON", "Cascade", "CascadeFitted", "Initialiser", "MoEIdeal", "MoEMoE",
-           "MoENFIR", "SINDyIdeal", "SINDyNFIR", "UpstreamFitted", "component_class", "intermediate_values",
-           "segment_mae", "target_samples", "with_inputs"]
+__all__ = [
+    "OPTIONS", "SOURCES", "TRAIN_ON", "Cascade", "MoEIdeal", "MoEMoE", "MoENFIR", "SINDyIdeal", "SINDyNFIR"
+]
 
 SOURCES = ("model", "true")
 TRAIN_ON = ("model", "true")

@@ -7,7 +7,7 @@ inputs); ``intermediate_values`` reads a measured intermediate and ``Initialiser
 estimates its unmeasured initial value; ``upstream_signals`` runs fitted upstreams over
 every raw row; ``holdout_search`` tunes a component on held-out trajectories by
 segment-averaged MAE (``segment_mae``). The Cascade method and its presets are
-``cascade.py``, which re-exports these names; nothing here reads a cascade's options.
+``cascade.py``; nothing here reads a cascade's options.
 """
 
 from __future__ import annotations

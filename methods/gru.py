@@ -19,32 +19,14 @@ units; everything else as ``neural-ss``.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch
-from torch import nn
+from enginebench.methods.neural_sim import NetConfig, NeuralSimFit, NeuralSimulator, declaration
 
-from enginebench.methods.neural_sim import Encoder, NetConfig, NeuralSimFit, NeuralSimulator, declaration
+if TYPE_CHECKING:
+    from torch import nn
 
 NAME = "gru"
-
-
-class GRUNet(nn.Module):
-    """Encoder to the GRU's hidden state, one GRU layer over the inputs, linear readout."""
-
-    def __init__(self, cfg: NetConfig) -> None:
-        super().__init__()
-        self.encoder = Encoder(cfg.lags, cfg.nu, cfg.ny, cfg.nx, cfg.hidden, cfg.layers)
-        self.gru = nn.GRU(cfg.nu, cfg.nx, batch_first=True)
-        self.readout = nn.Linear(cfg.nx, cfg.ny)
-
-    def forward(self, past_u: torch.Tensor, past_y: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Outputs (batch, T, ny) of a free run over inputs ``u`` (batch, T, nu) from the encoded window."""
-        h0 = torch.tanh(self.encoder(past_u, past_y))
-        if u.shape[1] == 0:
-            return u.new_zeros((u.shape[0], 0, self.readout.out_features))
-        states, _ = self.gru(u, h0.unsqueeze(0).contiguous())
-        return self.readout(states)
 
 
 class GRU(NeuralSimulator):
@@ -59,6 +41,8 @@ class GRU(NeuralSimulator):
                                    "hidden units of each layer of the encoder's MLP")
 
     def network(self, config: NetConfig) -> nn.Module:
+        from enginebench.methods.neural_nets import GRUNet  # torch: imported when a network is built
+
         return GRUNet(config)
 
     def model_facts(self, net: nn.Module, fitted: NeuralSimFit) -> dict[str, Any]:

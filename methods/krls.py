@@ -10,10 +10,9 @@ few dozen matrix-vector products (small or large gamma), not even that
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 import numpy as np
-from sklearn.preprocessing import StandardScaler
 
 from enginebench.declare import Declaration, choice, flag, log_grid as grid, text, whole
 from enginebench.errors import MethodError
@@ -23,6 +22,9 @@ from enginebench.methods.numerics.kernels import (check_positive, gaussian, gaus
 from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import ridge_solutions
 from enginebench.samples import Samples
+
+if TYPE_CHECKING:  # sklearn is imported where a scaler is made: listing methods imports no sklearn
+    from sklearn.preprocessing import StandardScaler
 
 
 SOLVERS = ("auto", "exact", "falkon")

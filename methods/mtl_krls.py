@@ -42,10 +42,9 @@ from __future__ import annotations
 import itertools
 import operator
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
-from sklearn.preprocessing import StandardScaler
 
 from enginebench.declare import choice, flag, log_grid as grid
 from enginebench.errors import MethodError
@@ -57,6 +56,9 @@ from enginebench.methods.numerics.repeats import RowGroups
 from enginebench.methods.numerics.shifted import shifted_solutions
 from enginebench.methods.pm import calibration_signals, physical_model, simulate_rows
 from enginebench.samples import Samples
+
+if TYPE_CHECKING:  # sklearn is imported where a scaler is made: listing methods imports no sklearn
+    from sklearn.preprocessing import StandardScaler
 
 HYPERPARAMETERS = ("gamma", "lambda", "theta")
 

@@ -55,10 +55,9 @@ from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, 
 from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
-from enginebench.samples import Samples
-# the numerics; NARXFit and nystroem_ridge stay importable from here
 from enginebench.methods.narx_model import (KernelModel, NARXFit, Standardised, free_run, nystroem_ridge,
                                             regressors, standardise)
+from enginebench.samples import Samples
 
 NAME = "narx"
 LAG_BASE = (2, 4, 8, 16, 32, 64)

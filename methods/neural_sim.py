@@ -32,11 +32,9 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import numpy as np
-import torch
-from torch import nn
 
 from enginebench.declare import Declaration, Invalid, anything, choice, is_whole, number, positive, text, whole
 from enginebench.errors import MethodError
@@ -45,6 +43,10 @@ from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, check_p
                                          training_trajectories)
 from enginebench.methods.numerics.device import cpu_threads, resolve_device
 from enginebench.samples import Samples
+
+if TYPE_CHECKING:  # torch is imported where a network is built or run, not here: listing methods imports no torch
+    import torch
+    from torch import nn
 
 HORIZON_SAMPLES = 100
 """``horizon = None``: the training subsections' length in samples (at most half the longest fitting part)."""
@@ -99,32 +101,7 @@ def declaration(state_meaning: str, hidden_meaning: str) -> Declaration:
     )
 
 
-# --------------------------------------------------------------------------- networks
-def mlp(n_in: int, n_out: int, hidden: int, layers: int) -> nn.Sequential:
-    """``layers`` tanh layers of ``hidden`` units and a linear output layer."""
-    parts: list[nn.Module] = []
-    width = n_in
-    for _ in range(layers):
-        parts += [nn.Linear(width, hidden), nn.Tanh()]
-        width = hidden
-    parts.append(nn.Linear(width, n_out))
-    return nn.Sequential(*parts)
-
-
-class Encoder(nn.Module):
-    """Initial state from the window's inputs and outputs: a linear map plus an MLP of the flattened window."""
-
-    def __init__(self, lags: int, nu: int, ny: int, n_state: int, hidden: int, layers: int) -> None:
-        super().__init__()
-        width = lags * (nu + ny)
-        self.linear = nn.Linear(width, n_state)
-        self.mlp = mlp(width, n_state, hidden, layers)
-
-    def forward(self, past_u: torch.Tensor, past_y: torch.Tensor) -> torch.Tensor:
-        z = torch.cat([past_u, past_y], dim=-1).flatten(1)
-        return self.linear(z) + self.mlp(z)
-
-
+# --------------------------------------------------------------------------- networks (the modules: neural_nets.py)
 @dataclass(frozen=True)
 class NetConfig:
     """Sizes of a network: inputs, outputs, state, encoder window, MLP width and depth."""
@@ -156,6 +133,8 @@ class NeuralSimFit:
 
 
 def _torch_dtype(name: str) -> torch.dtype:
+    import torch
+
     return torch.float64 if name == "float64" else torch.float32
 
 
@@ -180,6 +159,8 @@ class _Windows:
 
     def batch(self, positions: np.ndarray, length: int) -> tuple[torch.Tensor, ...]:
         """(past_u, past_y, u, y) of subsections starting at padded ``positions``, ``length`` samples long."""
+        import torch
+
         idx = torch.as_tensor(positions[:, None] + np.arange(-self.lags, length), device=self.U.device)
         U, Y = self.U[idx], self.Y[idx]
         return U[:, :self.lags], Y[:, :self.lags], U[:, self.lags:], Y[:, self.lags:]
@@ -187,6 +168,8 @@ class _Windows:
 
 def _windows(traj: Sequence[Trajectory], std: tuple[np.ndarray, ...], lags: int, horizon: int, val_fraction: float,
              device: torch.device, dtype: torch.dtype) -> _Windows:
+    import torch
+
     u_mean, u_std, y_mean, y_std = std
     Us, Ys, starts, val_starts, val_lengths = [], [], [], [], []
     offset = 0
@@ -217,6 +200,8 @@ def _windows(traj: Sequence[Trajectory], std: tuple[np.ndarray, ...], lags: int,
 
 def _validation_error(net: nn.Module, w: _Windows) -> float:
     """Mean squared standardised free-run error of the held-out record ends (inf when non-finite)."""
+    import torch
+
     longest = int(w.val_lengths.max())
     total, count = 0.0, 0
     with torch.no_grad():
@@ -283,6 +268,8 @@ class NeuralSimulator(Method):
     # -- fitting ------------------------------------------------------------------------------
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> NeuralSimFit:
         """Train on the free-run loss of random subsections, early-stopped on held-out record ends."""
+        import torch
+
         self.check_mode(train.mode)
         o = self.options
         traj = training_trajectories(self.name, train)
@@ -319,6 +306,8 @@ class NeuralSimulator(Method):
 
     def _train(self, net: nn.Module, w: _Windows, horizon: int, rng: np.random.Generator) -> dict[str, Any]:
         """Adam on the free-run loss; keeps the weights of the best validation (all in place on ``net``)."""
+        import torch
+
         o = self.options
         steps, batch = int(o["steps"]), min(int(o["batch_size"]), len(w.starts))
         every = max(1, steps // int(o["validations"]))
@@ -342,7 +331,7 @@ class NeuralSimulator(Method):
                     group["lr"] = lr * (final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * (step - 1) / steps)))
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
-                nn.utils.clip_grad_norm_(net.parameters(), GRAD_CLIP)
+                torch.nn.utils.clip_grad_norm_(net.parameters(), GRAD_CLIP)
                 opt.step()
                 last_loss = float(loss.detach())
             if validate and (step % every == 0 or step == steps):
@@ -368,6 +357,8 @@ class NeuralSimulator(Method):
 
     # -- prediction ---------------------------------------------------------------------------
     def _rebuild(self, fitted: NeuralSimFit, device: torch.device) -> nn.Module:
+        import torch
+
         with torch.random.fork_rng(devices=[]):
             net = self.network(fitted.config).to(_torch_dtype(fitted.dtype))
         net.load_state_dict({k: torch.as_tensor(v) for k, v in fitted.weights.items()})
@@ -375,6 +366,8 @@ class NeuralSimulator(Method):
 
     def predict(self, fitted: NeuralSimFit, data: Samples) -> SegmentPredictions:
         """Free run of every segment from its init window; segments with equal windows in one batch."""
+        import torch
+
         check_prediction_inputs(self.name, data, len(fitted.input_names))
         if not data.segments:
             return SegmentPredictions([], [])
@@ -414,6 +407,8 @@ class NeuralSimulator(Method):
 
     def describe(self, fitted: NeuralSimFit) -> dict[str, Any]:
         """Sizes, training facts (steps, early stopping, validation error), standardisation, envelope."""
+        import torch
+
         net = self._rebuild(fitted, torch.device("cpu"))
         cfg = fitted.config
         return {
@@ -447,4 +442,4 @@ def _padded(values: np.ndarray, length: int) -> np.ndarray:
     return np.concatenate([values, np.repeat(fill, length - len(values), axis=0)])
 
 
-__all__ = ["Encoder", "NetConfig", "NeuralSimFit", "NeuralSimulator", "declaration", "mlp"]
+__all__ = ["NetConfig", "NeuralSimFit", "NeuralSimulator", "declaration"]

@@ -31,45 +31,16 @@ Training, early stopping, the init window, the batched free run and divergence a
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
-from torch import nn
 
-from enginebench.methods.neural_sim import Encoder, NetConfig, NeuralSimFit, NeuralSimulator, declaration, mlp
+from enginebench.methods.neural_sim import NetConfig, NeuralSimFit, NeuralSimulator, declaration
+
+if TYPE_CHECKING:
+    from torch import nn
 
 NAME = "neural-ss"
-
-
-class StateSpaceNet(nn.Module):
-    """Encoder, and one step x(t) -> (x(t+1), y(t)) as a linear skip plus a two-headed MLP."""
-
-    def __init__(self, cfg: NetConfig) -> None:
-        super().__init__()
-        self.nx, self.ny = cfg.nx, cfg.ny
-        self.encoder = Encoder(cfg.lags, cfg.nu, cfg.ny, cfg.nx, cfg.hidden, cfg.layers)
-        self.linear = nn.Linear(cfg.nx + cfg.nu, cfg.nx + cfg.ny)  # [[A, B], [C, D]] and a constant
-        self.mlp = mlp(cfg.nx + cfg.nu, cfg.nx + cfg.ny, cfg.hidden, cfg.layers)  # [f; h]
-
-    def forward(self, past_u: torch.Tensor, past_y: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Outputs (batch, T, ny) of a free run over inputs ``u`` (batch, T, nu) from the encoded window."""
-        x = self.encoder(past_u, past_y)
-        nx, m = self.nx, self.nx + self.ny
-        first: nn.Linear = self.mlp[0]  # type: ignore[assignment]
-        rest = self.mlp[1:]
-        w_x = torch.cat([self.linear.weight[:, :nx], first.weight[:, :nx]]).T.contiguous()
-        w_u = torch.cat([self.linear.weight[:, nx:], first.weight[:, nx:]]).T
-        drive = torch.matmul(u.transpose(0, 1), w_u) + torch.cat([self.linear.bias, first.bias])  # (T, batch, m + H)
-        ys = []
-        for t in range(u.shape[1]):
-            z = torch.addmm(drive[t], x, w_x)
-            out = z[:, :m] + rest(z[:, m:])
-            ys.append(out[:, nx:])
-            x = out[:, :nx]
-        if not ys:
-            return u.new_zeros((u.shape[0], 0, self.ny))
-        return torch.stack(ys, dim=1)
 
 
 class NeuralSS(NeuralSimulator):
@@ -84,6 +55,8 @@ class NeuralSS(NeuralSimulator):
                                    "hidden units of each MLP layer (encoder, state transition and output map)")
 
     def network(self, config: NetConfig) -> nn.Module:
+        from enginebench.methods.neural_nets import StateSpaceNet  # torch: imported when a network is built
+
         return StateSpaceNet(config)
 
     def model_facts(self, net: nn.Module, fitted: NeuralSimFit) -> dict[str, Any]:

@@ -37,7 +37,7 @@ is fitted on at most ``max_rows`` training rows drawn with the job's generator; 
 are computed in chunks of rows so that a long evaluation set never forms a huge kernel.
 
 The lag helpers and the memory estimate (``estimate_memory``, ``MemoryEstimate``) are
-``nfir_memory.py``; their names stay importable from here.
+``nfir_memory.py``.
 """
 
 from __future__ import annotations
@@ -52,24 +52,13 @@ from enginebench.errors import MethodError
 from enginebench.method import Params, SearchSpace, SegmentPredictions, split_rows
 from enginebench.methods.input_history import HISTORY_OPTIONS, InputHistory
 from enginebench.methods.krls import GAMMA_BOUND, LAMBDA_BOUND, KRLS, KRLSFitted
-from enginebench.methods.nfir_memory import (MemoryEstimate, bounded_stride, estimate_memory, horizon_samples,
-                                             lag_feature_names, lagged_inputs, memory_ladder, nfir_lags)
+from enginebench.methods.nfir_memory import MemoryEstimate, horizon_samples
 from enginebench.methods.numerics.kernel_grid import kernel_ridge_grid
 from enginebench.methods.numerics.kernels import check_positive, gaussian, sq_distances
 from enginebench.samples import Samples
 
 __all__ = [
-    "MemoryEstimate",
-    "NFIR",
-    "NFIRFitted",
-    "PREDICT_CHUNK",
-    "bounded_stride",
-    "estimate_memory",
-    "horizon_samples",
-    "lag_feature_names",
-    "lagged_inputs",
-    "memory_ladder",
-    "nfir_lags",
+    "NFIR", "NFIRFitted", "PREDICT_CHUNK"
 ]
 
 PREDICT_CHUNK = 8192

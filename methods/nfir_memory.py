@@ -6,7 +6,7 @@ lagged-input features with edge padding (``nfir_lags``, ``lagged_inputs``...).
 the training data: a ridge FIR of the lagged inputs and their squares on a ladder of
 horizons, scored by blocked two-fold cross-validation, and derives the horizon grid
 around it (the rule is in ``nfir``'s module docstring). The NFIR method itself is
-``nfir.py``, which re-exports these names; the estimate is numerics on arrays only, kept
+``nfir.py``; the estimate is numerics on arrays only, kept
 apart from the method so each can be read on its own.
 """
 

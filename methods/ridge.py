@@ -15,10 +15,9 @@ as much as its column's fit. One thin SVD s(X) = U S V^T per training part serve
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
-from sklearn.preprocessing import StandardScaler
 
 from enginebench.declare import Declaration, log_grid as grid
 from enginebench.errors import MethodError
@@ -26,6 +25,9 @@ from enginebench.method import Method, Params, SearchSpace, log_grid, split_rows
 from enginebench.methods.krls import _check_finite
 from enginebench.methods.numerics.kernels import make_scaler, power_of_two_scale, standardize_rows
 from enginebench.samples import Samples
+
+if TYPE_CHECKING:  # sklearn is imported where a scaler is made: listing methods imports no sklearn
+    from sklearn.preprocessing import StandardScaler
 
 ALPHA_BOUND = (1e-14, 1e8)
 """Hard bounds of a searched penalty, relative to the training rows (the standardised Gram's diagonal): below

@@ -60,8 +60,8 @@ from enginebench.errors import MethodError
 from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, log_grid
 from enginebench.methods.numerics.derivatives import digest
 from enginebench.methods.sindy_grid import library_gram, segment_derivative, simulate_candidates, stlsq_gram
-from enginebench.methods.sindy_library import (  # noqa: F401 (tests and callers import them from here too)
-    DERIVATIVE_KINDS, DERIVATIVE_SOLVERS, INTEGRATORS, differentiate, library_features, raw_coefficients, simulate_batch,
+from enginebench.methods.sindy_library import (
+    DERIVATIVE_KINDS, DERIVATIVE_SOLVERS, INTEGRATORS, differentiate, raw_coefficients,
 )
 from enginebench.samples import Samples
 

@@ -29,7 +29,7 @@ from enginebench.reports.static import (
 from enginebench.reports.static_figures import _time_axis
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 
 INTERACTIVE_FILE = "report.html"
 INSTALL_HINT = 'pip install "enginebench[report]"'

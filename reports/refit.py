@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from enginebench.errors import EngineBenchError, MethodError
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 
 MAX_ROWS = 20_000
 """Most rows of the evaluated part predicted for the static/window figures (evenly thinned beyond)."""

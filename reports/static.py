@@ -38,7 +38,7 @@ from enginebench.reports.refit import MAX_ROWS, REFIT_ERRORS, Predictions, refit
 from enginebench.reports.static_figures import Figure, prediction_figures, simulation_figures, time_trend_plot
 from enginebench.results import tables
 from enginebench.results.notes import run_note_lines
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 from enginebench.results.units import run_units
 from enginebench.results.verdict import Verdict, verdicts
 

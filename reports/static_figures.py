@@ -17,7 +17,7 @@ import numpy as np
 
 from enginebench.errors import MethodError
 from enginebench.reports.refit import Predictions
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 
 
 @dataclass(frozen=True)

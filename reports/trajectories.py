@@ -29,7 +29,7 @@ from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import from_dict
 from enginebench.method import EXPLAIN_WEIGHTS, Method
 from enginebench.reports.plots import scatter_plot, trajectory_plot
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 from enginebench.results.units import run_units
 
 

@@ -59,7 +59,7 @@ from enginebench.errors import DataError
 from enginebench.results.compare import JOIN, lower_is_better
 from enginebench.results.output import write_output
 from enginebench.results.reproduce import ROUNDING_RTOL
-from enginebench.results.tables import summarize
+from enginebench.results.summary import summarize
 
 FORMAT = "enginebench-baseline"
 VERSION = 1

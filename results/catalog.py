@@ -31,7 +31,9 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from enginebench.errors import SpecError, StoreError
-from enginebench.results.store import LOCK_FILE, Run, RunStore, methods_used
+from enginebench.results.run_folder import Run, methods_used
+from enginebench.results.run_lock import LOCK_FILE
+from enginebench.results.store import RunStore
 
 try:
     import fcntl

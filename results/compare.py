@@ -36,7 +36,7 @@ import pandas as pd
 from enginebench.errors import DataError
 from enginebench.results.metrics import METRICS
 from enginebench.results.stats import paired_pvalues, t_interval
-from enginebench.results.tables import with_skill, summarize
+from enginebench.results.summary import with_skill, summarize
 
 __all__ = [
     "COMPARE_COLUMNS",

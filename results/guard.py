@@ -1,7 +1,7 @@
 """The guard: check a run against a published baseline (docs/reports.md).
 
 The baseline file (its format, and making, writing, finding and reading one) is
-``results/baseline.py``; its names stay importable from here. This module is the
+``results/baseline.py``. This module is the
 comparison: tolerances, the guard rule per entry, the verdict and its report.
 
 Guard rule, per published entry: the bound is ``ci_high`` for a lower-is-better metric
@@ -30,32 +30,14 @@ import pandas as pd
 
 from enginebench.errors import DataError
 from enginebench.results import reproduce
+from enginebench.results.baseline import recorded_dataset_hash
 from enginebench.results.compare import JOIN, num, text_table
-from enginebench.results.tables import summarize
-from enginebench.results.baseline import (FORMAT, VERSION, BaselineError, baseline_from_summary, load_baseline,
-                                          make_baseline, published_dir, recorded_dataset_hash, resolve_baseline,
-                                          write_baseline)
+from enginebench.results.summary import summarize
 
 __all__ = [
-    "BaselineError",
-    "FORMAT",
-    "GuardResult",
-    "Tolerance",
-    "VERSION",
-    "baseline_from_summary",
-    "check",
-    "guard_run",
-    "load_baseline",
-    "make_baseline",
-    "parse_tolerance",
-    "published_dir",
-    "recorded_dataset_hash",
-    "report",
-    "resolve_baseline",
-    "rtol_note",
-    "write_baseline",
+    "GuardResult", "Tolerance", "check", "guard_run", "parse_tolerance", "report", "rtol_note"
 ]
-"""The guard's names and, still importable from here, the baseline file's (``results/baseline.py``)."""
+"""The guard's names (the baseline file's are ``results/baseline.py``'s)."""
 
 
 @dataclass(frozen=True)

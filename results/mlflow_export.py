@@ -41,17 +41,14 @@ from typing import Callable
 
 from enginebench.errors import EngineBenchError
 from enginebench.results import tables
-from enginebench.results.mlflow_layout import (ChildRun, ExportError, Layout, build_layout, flatten, job_records,
-                                               key_part, mlflow_key, most_frequent_picks, registry_family,
-                                               sanitize_key, selected_frame)
-from enginebench.results.store import Run
+from enginebench.results.mlflow_layout import ExportError, Layout, build_layout, registry_family
+from enginebench.results.run_folder import Run
 from enginebench.results.units import run_units
 
-__all__ = ["BATCH", "INSTALL_HINT", "PARAM_BATCH", "PROBE_TIMEOUT_S", "ExportResult", "MissingDependency",
-           "artifact_location", "check_destination", "export_run", "import_mlflow", "resolve_uri",
-           # the layout's names (built without MLflow), still importable from here
-           "ChildRun", "ExportError", "Layout", "build_layout", "flatten", "job_records", "key_part", "mlflow_key",
-           "most_frequent_picks", "registry_family", "sanitize_key", "selected_frame"]
+__all__ = [
+    "BATCH", "INSTALL_HINT", "PARAM_BATCH", "PROBE_TIMEOUT_S", "ExportResult", "MissingDependency",
+    "artifact_location", "check_destination", "export_run", "import_mlflow", "resolve_uri"
+]
 
 INSTALL_HINT = 'pip install "enginebench[mlflow]"'
 BATCH = 900

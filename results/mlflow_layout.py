@@ -52,7 +52,7 @@ import pandas as pd
 
 from enginebench.errors import EngineBenchError
 from enginebench.results import tables
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 
 MAX_PARAM_CHARS = 6000
 """MLflow's limit on a param value; longer values are cut (the csv artefact holds them whole)."""

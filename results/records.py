@@ -15,7 +15,6 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from enginebench.results.metrics import PER_SEGMENT
 from enginebench.results.stats import t_interval
 from enginebench.results.summary import BASELINE
 from enginebench.results.tables import LINEAR_BASELINES, NAIVE_BASELINES, NO_BETTER, linear_baseline

@@ -172,7 +172,7 @@ def measure(run, summary: pd.DataFrame, *, interval: str, perturbations: Sequenc
     relative difference per method, and ``rtol`` per method (largest over the reruns
     times ``safety``, at least ``ROUNDING_RTOL``).
     """
-    from enginebench.results.tables import summarize
+    from enginebench.results.summary import summarize
 
     perturbations = list(default_perturbations() if perturbations is None else perturbations)
     methods = sorted(set(summary["method"]))

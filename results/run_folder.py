@@ -51,7 +51,7 @@ from enginebench.results import run_lock
 from enginebench.results.atomic import READ_ERRORS, atomic_write_bytes, damage_text, read_parquet, table_bytes, write_failed
 from enginebench.results.model_store import MODEL_META, MODELS_DIR
 from enginebench.results.job_files import (
-    SELECTION_DIR, SELECTION_META, encode_job, jsonable, load_job, read_selection, selection_bytes, selection_frame,
+    SELECTION_DIR, encode_job, jsonable, load_job, read_selection, selection_bytes, selection_frame,
 )
 
 REQUIRED_FILES = ("run.json", "config.toml", "environment.json")

@@ -16,8 +16,7 @@ Layout::
 The store's parts, one job each: ``results.atomic`` (atomic, checksummed writes; a full
 disk), ``results.run_lock`` (one writer per run), ``results.job_files`` (job files and
 selection tables; their damage), ``results.run_folder`` (``Run``: one run folder; a
-damaged folder, plugin files, resuming) and this module. Their names are re-exported
-here (``from enginebench.results.store import Run, RunStore`` keeps working).
+damaged folder, plugin files, resuming) and this module (``RunStore``, ``open_run``).
 
 Faults handled here: a destructive command given a path outside the store, ``.``, or an empty
 reference (an unset ``$RUN``): ``get_own`` refuses all three, so ``runs rm`` deletes only run
@@ -48,14 +47,13 @@ from typing import Any
 import tomli_w
 
 from enginebench.errors import StoreError
-from enginebench.results.atomic import DISK_FULL, READ_ERRORS, write_failed
-from enginebench.results.job_files import JOB_META_KEY, SELECTION_COLUMNS, SELECTION_DIR, SELECTION_META, jsonable
-from enginebench.results.run_folder import REQUIRED_FILES, ResumeState, Run, methods_used
-from enginebench.results.run_lock import LOCK_FILE
+from enginebench.results.atomic import write_failed
+from enginebench.results.job_files import jsonable
+from enginebench.results.run_folder import Run, methods_used
 
-__all__ = ["DEFAULT_STORE", "DISK_FULL", "JOB_META_KEY", "LOCK_FILE", "READ_ERRORS", "REQUIRED_FILES",
-           "SELECTION_COLUMNS", "SELECTION_DIR", "SELECTION_META", "ResumeState", "Run", "RunStore", "methods_used",
-           "open_run", "store_root"]
+__all__ = [
+    "DEFAULT_STORE", "RunStore", "open_run", "store_root"
+]
 
 DEFAULT_STORE = "enginebench-runs"
 

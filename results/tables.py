@@ -24,10 +24,8 @@ import pandas as pd
 
 from enginebench.errors import DataError
 from enginebench.results.metrics import METRICS
-from enginebench.results.summary import (  # noqa: F401 - re-exported: tables.summarize and friends
-    BASELINE, CROSSED_NOTE, IDENTICAL_NOTE, KEYS, PAIRED_COLUMNS, SKILL_OF, SUMMARY_COLUMNS, bound_text, paired_tests,
-    summarize, with_skill,
-)
+from enginebench.results.summary import BASELINE, CROSSED_NOTE, IDENTICAL_NOTE, bound_text
+from enginebench.results.summary import paired_tests, summarize  # noqa: F401 - read as tables.summarize, tables.paired_tests
 from enginebench.results.units import WINDOW, axis_label, header, metric_unit
 
 DEFAULT_METRICS = ("mae", "mape", "ppmcc", "rmae")

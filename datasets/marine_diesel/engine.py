@@ -50,9 +50,7 @@ from enginebench.datasets.marine_diesel.components import (
     Compressor, Cylinders, GasExchange, Turbine, back_pressure, exhaust_receiver, governor, intake_receiver,
     intercooler, lag_step, manifold, peak_pressure, rotor_step, wall_step,
 )
-from enginebench.datasets.marine_diesel.engine_config import (  # noqa: F401 (public here too, as before)
-    STREAM_ENGINE, EngineConfig, engine_config, engine_for_seed, fuel_to_rack, rack_to_fuel,
-)
+from enginebench.datasets.marine_diesel.engine_config import EngineConfig, fuel_to_rack, rack_to_fuel
 
 BANKS = ("a", "b")
 

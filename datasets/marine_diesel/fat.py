@@ -29,7 +29,8 @@ import numpy as np
 import pandas as pd
 
 from enginebench.datasets.marine_diesel import constants as C
-from enginebench.datasets.marine_diesel.engine import engine_for_seed, steady_state
+from enginebench.datasets.marine_diesel.engine import steady_state
+from enginebench.datasets.marine_diesel.engine_config import engine_for_seed
 from enginebench.datasets.marine_diesel.sensors import SensorSpec
 from enginebench.errors import DataError
 

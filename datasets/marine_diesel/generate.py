@@ -29,9 +29,8 @@ import pandas as pd
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.marine_diesel import constants as C
-from enginebench.datasets.marine_diesel.engine import (
-    STREAM_ENGINE, EngineConfig, engine_for_seed, fuel_to_rack, simulate_rows,
-)
+from enginebench.datasets.marine_diesel.engine import simulate_rows
+from enginebench.datasets.marine_diesel.engine_config import STREAM_ENGINE, EngineConfig, engine_for_seed, fuel_to_rack
 from enginebench.datasets.marine_diesel.pm import PM_NAME
 from enginebench.datasets.marine_diesel.profile import Profile, make_profile
 from enginebench.datasets.marine_diesel.sensors import SensorSpec, first_order_lag

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Iterator
-
-import torch
+from typing import TYPE_CHECKING, Iterator
 
 from enginebench.errors import MethodError
+
+if TYPE_CHECKING:  # imported in the functions: the method modules that import these load without torch
+    import torch
 
 
 def resolve_device(device: str, who: str) -> torch.device:
@@ -16,6 +17,8 @@ def resolve_device(device: str, who: str) -> torch.device:
     ``who`` opens every error line (e.g. "method 'moe'", "FALKON solver"), so the message says
     which option of which method to change.
     """
+    import torch
+
     if not isinstance(device, str):
         raise MethodError(f"{who}: device must be a string ('auto', 'cpu', 'cuda', 'cuda:0'), got {device!r}")
     if device == "auto":
@@ -39,6 +42,8 @@ def cpu_threads(limit: int | None, device: torch.device) -> Iterator[None]:
     each synchronised reduction can stall for a scheduler quantum; parallelism belongs
     to the runner's process pool. ``None`` leaves the setting alone.
     """
+    import torch
+
     before = torch.get_num_threads()
     if limit is None or device.type != "cpu" or limit >= before:
         yield

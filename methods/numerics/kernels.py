@@ -11,13 +11,15 @@ component and comes back with ``lift`` or ``predict_coeffs``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import scipy.linalg
-from sklearn.preprocessing import StandardScaler
 
 from enginebench.errors import MethodError
+
+if TYPE_CHECKING:  # sklearn is imported where a scaler is made: listing methods imports no sklearn
+    from sklearn.preprocessing import StandardScaler
 
 NEGATIVE_EIG_RTOL = 1e-8
 """Eigenvalues below -NEGATIVE_EIG_RTOL * max|s| mean the matrix is not a kernel matrix."""
@@ -42,6 +44,8 @@ def make_scaler(X: np.ndarray, standardize: bool = True) -> StandardScaler:
     With ``standardize=False`` the returned scaler leaves features unchanged, so fitted
     models always carry a scaler and the prediction path is the same either way.
     """
+    from sklearn.preprocessing import StandardScaler
+
     scaler = StandardScaler(with_mean=standardize, with_std=standardize)
     if not standardize:
         return scaler.fit(X)

@@ -14,8 +14,10 @@ from enginebench.cli.main import cli
 from enginebench.experiments.jobs import Job, selection_frame
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.selection import SelectionTable
+from enginebench.results.job_files import SELECTION_META
 from enginebench.results.picks import value_text
-from enginebench.results.store import SELECTION_META, Run, RunStore
+from enginebench.results.run_folder import Run
+from enginebench.results.store import RunStore
 from helpers import make_toy, toy_spec
 
 ARX_SCORES = np.array([[0.5, 0.7], [0.2, 0.3], [0.25, 0.35], [0.9, 1.1]])

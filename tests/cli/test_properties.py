@@ -34,7 +34,8 @@ from hypothesis import strategies as st
 
 from enginebench.cli.main import cli
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.importer import ALLOWED_KEYS, ImportSpec, import_table, load_spec
+from enginebench.datasets.import_spec import ALLOWED_KEYS, ImportSpec, load_spec
+from enginebench.datasets.importer import import_table
 from enginebench.datasets.pools import RawSegments, SamplePool, make_samples
 from enginebench.datasets.schema import Column, Schema
 from enginebench.datasets.splits import groups, holdout, rolling

@@ -11,7 +11,7 @@ from enginebench.datasets.splits import published
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.spec import from_dict
 from enginebench.results.store import RunStore
-from enginebench.results.tables import summarize
+from enginebench.results.summary import summarize
 
 pytestmark = pytest.mark.shared_data
 

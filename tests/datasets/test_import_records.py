@@ -15,7 +15,8 @@ from click.testing import CliRunner
 
 from enginebench.cli.main import cli
 from enginebench.datasets.dataset import SEGMENT, TIME
-from enginebench.datasets.importer import import_table, load_spec
+from enginebench.datasets.import_spec import load_spec
+from enginebench.datasets.importer import import_table
 from enginebench.datasets.io import read_dataset
 from enginebench.errors import DataError, SpecError
 

@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
-from enginebench.datasets.importer import ImportSpec, import_table, load_spec
+from enginebench.datasets.import_spec import ImportSpec, load_spec
+from enginebench.datasets.importer import import_table
 from enginebench.datasets.io import read_dataset, write_dataset
 from enginebench.datasets.schema import Schema
 from enginebench.datasets.validate import validate_frame

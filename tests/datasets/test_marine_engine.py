@@ -7,9 +7,8 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from enginebench.datasets.marine_diesel import constants as C
-from enginebench.datasets.marine_diesel.engine import (
-    INPUT_NAMES, engine_for_seed, fuel_to_rack, lane_plan, rack_to_fuel, run_lanes, simulate_rows, steady_state,
-)
+from enginebench.datasets.marine_diesel.engine import INPUT_NAMES, lane_plan, run_lanes, simulate_rows, steady_state
+from enginebench.datasets.marine_diesel.engine_config import engine_for_seed, fuel_to_rack, rack_to_fuel
 from enginebench.datasets.marine_diesel.profile import make_profile
 from enginebench.datasets.marine_diesel.sensors import first_order_lag
 from enginebench.datasets.marine_diesel.thermal import lt_after_cooler_k

@@ -32,7 +32,8 @@ from enginebench.methods.mtl_krls import MTLKRLS
 from enginebench.registry import register
 from enginebench.results.metrics import compute_metrics, mape
 from enginebench.results.store import RunStore
-from enginebench.results.tables import summarize, to_csv, to_markdown
+from enginebench.results.summary import summarize
+from enginebench.results.tables import to_csv, to_markdown
 
 JOB_ERRORS = (EngineBenchError, FloatingPointError, np.linalg.LinAlgError, ValueError, RuntimeError)
 """What a job turns into a 'failed' record with a reason (experiments/jobs.py)."""

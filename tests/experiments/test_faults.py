@@ -371,7 +371,7 @@ def test_latest_when_every_run_is_damaged(finished_run):
 # ----------------------------------------------------------------------------- one writer per run
 HOLD = """
 import sys, time
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 Run(__import__("pathlib").Path(sys.argv[1])).lock()
 print("locked", flush=True)
 time.sleep(600)

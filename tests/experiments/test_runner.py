@@ -13,7 +13,8 @@ from enginebench.experiments.runner import prepare, run_experiment
 from enginebench.experiments.spec import from_dict, load_spec
 from enginebench.results.store import RunStore
 from helpers import interrupt_after, toy_spec
-from enginebench.results.tables import SUMMARY_COLUMNS, summarize, to_csv, to_html, to_latex, to_markdown
+from enginebench.results.summary import SUMMARY_COLUMNS, summarize
+from enginebench.results.tables import to_csv, to_html, to_latex, to_markdown
 
 
 def test_plan_covers_every_coordinate_once(toy_parquet):

@@ -11,9 +11,10 @@ from click.testing import CliRunner
 from enginebench.cli.main import cli
 from enginebench.datasets.io import write_dataset
 from enginebench.errors import SpecError
+from enginebench.experiments.engine import plan
 from enginebench.experiments.executors import EXECUTORS
 from enginebench.experiments.jobs import run_job
-from enginebench.experiments.runner import context_of_run, plan, run_experiment
+from enginebench.experiments.runner import context_of_run, run_experiment
 from enginebench.experiments.slurm import _minutes, parse_slurm_options, resources, submitit_parameters
 from enginebench.experiments.spec import from_dict
 from enginebench.results.store import RunStore

@@ -14,9 +14,8 @@ from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.method import grid_points
-from enginebench.methods.cascade import (
-    Cascade, Initialiser, MoEIdeal, MoEMoE, MoENFIR, SINDyIdeal, SINDyNFIR, target_samples, with_inputs,
-)
+from enginebench.methods.cascade import Cascade, MoEIdeal, MoEMoE, MoENFIR, SINDyIdeal, SINDyNFIR
+from enginebench.methods.cascade_components import Initialiser, target_samples, with_inputs
 from enginebench.methods.nfir import NFIR
 
 DT = 0.5

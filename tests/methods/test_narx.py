@@ -15,7 +15,8 @@ from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.method import SegmentPredictions, grid_points
 from enginebench.methods.freerun import Envelope
-from enginebench.methods.narx import NARX, NARXFit
+from enginebench.methods.narx import NARX
+from enginebench.methods.narx_model import NARXFit
 from enginebench.samples import Samples
 
 PARAMS = {"lags": 2, "nk": 0, "gamma": 0.3, "lambda": 1e-6}
@@ -214,7 +215,7 @@ def test_describe_names_the_model(fitted):
 
 def test_nystroem_with_every_row_as_a_centre_is_exact_krls():
     from enginebench.methods.numerics.kernels import gaussian, sq_distances
-    from enginebench.methods.narx import nystroem_ridge
+    from enginebench.methods.narx_model import nystroem_ridge
 
     rng = np.random.default_rng(0)
     Z, y = rng.normal(size=(60, 3)), rng.normal(size=60)

@@ -15,8 +15,9 @@ from enginebench.datasets.pools import make_samples
 from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.method import SegmentPredictions, grid_points
-from enginebench.methods.nfir import (
-    NFIR, bounded_stride, estimate_memory, lag_feature_names, lagged_inputs, memory_ladder, nfir_lags,
+from enginebench.methods.nfir import NFIR
+from enginebench.methods.nfir_memory import (
+    bounded_stride, estimate_memory, lag_feature_names, lagged_inputs, memory_ladder, nfir_lags,
 )
 
 DT = 0.5

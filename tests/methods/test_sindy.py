@@ -21,7 +21,8 @@ from enginebench.datasets.schema import Schema
 from enginebench.errors import MethodError
 from enginebench.method import SegmentPredictions, grid_points
 from enginebench.methods.numerics.derivatives import window_bounds
-from enginebench.methods.sindy import SINDy, differentiate, library_features, raw_coefficients, simulate_batch
+from enginebench.methods.sindy import SINDy
+from enginebench.methods.sindy_library import differentiate, library_features, raw_coefficients, simulate_batch
 from enginebench.samples import Samples
 
 DT = 0.1

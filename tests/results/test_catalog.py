@@ -157,7 +157,7 @@ def test_tags_are_edited_in_run_json_but_never_in_the_config(tmp_path):
 
 HOLD = """
 import sys, time
-from enginebench.results.store import Run
+from enginebench.results.run_folder import Run
 Run(__import__("pathlib").Path(sys.argv[1])).lock()
 print("locked", flush=True)
 time.sleep(600)

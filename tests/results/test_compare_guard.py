@@ -17,13 +17,12 @@ from enginebench.cli.main import Group
 from enginebench.errors import DataError
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.spec import from_dict, load_spec
+from enginebench.results.baseline import BaselineError, baseline_from_summary, load_baseline, published_dir
 from enginebench.results.compare import compare_metrics, pairing, repetition_values, welch_interval
-from enginebench.results.guard import (
-    BaselineError, Tolerance, baseline_from_summary, check, load_baseline, parse_tolerance, published_dir,
-)
+from enginebench.results.guard import Tolerance, check, parse_tolerance
 from enginebench.results.store import RunStore
 from helpers import make_toy
-from enginebench.results.tables import summarize
+from enginebench.results.summary import summarize
 
 
 KRLS = {"gamma_grid": [-2, 0, 3], "lambda_grid": [-3, -1, 3]}

@@ -65,7 +65,7 @@ def world(tmp_path_factory) -> World:
     from enginebench.datasets.io import write_dataset
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import from_dict
-    from enginebench.results.guard import make_baseline, write_baseline
+    from enginebench.results.baseline import make_baseline, write_baseline
     from enginebench.results.store import RunStore
     from helpers import make_toy
 

@@ -22,8 +22,10 @@ from enginebench.cli.main import cli
 from enginebench.method import Method
 from enginebench.registry import register
 from enginebench.results import tables
-from enginebench.results.mlflow_export import (build_layout, flatten, key_part, mlflow_key, most_frequent_picks,
-                                               resolve_uri, sanitize_key)
+from enginebench.results.mlflow_export import resolve_uri
+from enginebench.results.mlflow_layout import (
+    build_layout, flatten, key_part, mlflow_key, most_frequent_picks, sanitize_key,
+)
 from enginebench.results.store import RunStore
 from enginebench.results.units import run_units
 from helpers import make_toy

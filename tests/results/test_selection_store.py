@@ -17,8 +17,9 @@ from enginebench.experiments.jobs import Job, selection_frame
 from enginebench.experiments.runner import run_experiment
 from enginebench.experiments.selection import SelectionTable
 from enginebench.results import atomic as store_mod  # the store writes every file through atomic._write_bytes
+from enginebench.results.job_files import SELECTION_COLUMNS, SELECTION_META
 from enginebench.results.notes import edge_note_lines
-from enginebench.results.store import SELECTION_COLUMNS, SELECTION_META, RunStore
+from enginebench.results.store import RunStore
 from helpers import toy_spec
 
 JOB = Job("y", 0.0, "published", "krls", 1)

@@ -1,0 +1,173 @@
+"""Long recordings: CPU time and peak memory against record length, for importing a CSV and fitting arx,
+each beside the library doing the same work in the same process.
+
+import: ``enginebench``'s import of a generated recording (a time column and 9 channels, 10 columns, every
+digit written; ``datasets/importer.py``: parse, check every cell, time stamps and segments) against
+``pandas.read_csv`` of the same file (parse only). Files of 1 MiB and more are parsed by pyarrow's CSV
+reader (``datasets/readers.py``), value for value equal to pandas' (``tests/datasets/test_arrow_csv.py``);
+the last columns import through pandas' parser, as before, for comparison.
+
+arx: ``ARX.fit`` with na = nb = 64 lags (nk = 1) on one record of a 2-input ARX system with noise, from
+the samples (the lag products included), against scikit-learn's ``Ridge`` (alpha 1e-9) fitted on the same
+lagged regression matrix (``methods.arx.regression``, built beforehand: its time is printed apart), and
+the one-step RMSE of both on the training record (equal to ~1e-6 relative).
+
+CPU is this process's CPU time (``time.process_time``: all threads; honest on a shared machine), best of
+``--repeat``; peak is the rise of the resident set's high-water mark over the step (``/proc/self/clear_refs``
+resets it; n/a where the kernel does not allow it).
+
+Usage: python benchmarks/long_records.py [--sizes 1e4 1e5 1e6] [--full (adds 1e7)] [--repeat 3]
+       [--skip-import] [--skip-arx]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+import scipy.signal
+
+from enginebench.datasets import readers
+from enginebench.datasets.importer import import_table
+from enginebench.datasets.pools import RawSegments, SamplePool
+from enginebench.datasets.dataset import Dataset
+from enginebench.datasets.schema import Schema
+from enginebench.methods.arx import ARX, regression
+from enginebench.methods.freerun import training_trajectories
+
+CHANNELS = 9
+LAGS = 64
+
+
+def _rss_kib(field: str) -> int | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def _reset_peak() -> bool:
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def measure(fn: Callable[[], object], repeat: int) -> tuple[float, float | None, object]:
+    """(best CPU seconds, peak rise in MB of the last call, the last result)."""
+    best, peak, out = float("inf"), None, None
+    for _ in range(repeat):
+        out = None
+        gc.collect()
+        can = _reset_peak()
+        base = _rss_kib("VmRSS")
+        t = time.process_time()
+        out = fn()
+        best = min(best, time.process_time() - t)
+        hwm = _rss_kib("VmHWM")
+        peak = (hwm - base) / 1024 if can and hwm is not None and base is not None else None
+    return best, peak, out
+
+
+def write_recording(folder: Path, n: int) -> Path:
+    """A recording of ``n`` rows: time at 100 Hz and 9 channels (8 inputs, 1 output), and its import spec."""
+    rng = np.random.default_rng(0)
+    frame = pd.DataFrame({"t": np.arange(n) * 0.01})
+    for k in range(CHANNELS):
+        frame[f"c{k}"] = rng.normal(size=n).cumsum() / 100 + rng.normal(size=n)
+    frame.to_csv(folder / f"rec{n}.csv", index=False)
+    spec = folder / f"rec{n}.toml"
+    spec.write_text(f'name = "rec{n}"\nfiles = ["rec{n}.csv"]\ntime = "t"\ndt = 0.01\n[columns]\n'
+                    + "".join(f'c{k} = {{ role = "{"output" if k == CHANNELS - 1 else "input"}" }}\n'
+                              for k in range(CHANNELS)), encoding="utf-8")
+    return spec
+
+
+def arx_samples(n: int):
+    """One record of y = ARX(2 inputs, order 4) + noise, as simulation-mode training samples."""
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(n, 2))
+    a = np.poly([0.9, 0.7, 0.5 + 0.2j, 0.5 - 0.2j]).real
+    y = scipy.signal.lfilter([0, 0.5, 0.2], a, u[:, 0]) + scipy.signal.lfilter([0, -0.3, 0.1], a, u[:, 1])
+    y += 0.01 * rng.normal(size=n)
+    frame = pd.DataFrame({"segment": "r", "time": np.arange(n) * 0.01, "u1": u[:, 0], "u2": u[:, 1], "y": y})
+    ds = Dataset("arx", frame, Schema.from_roles({"u1": "input", "u2": "input", "y": "output"}), 0.01)
+    return SamplePool(RawSegments.from_dataset(ds), ["y"], "simulation").materialize()
+
+
+def one_step_rmse(theta: np.ndarray, Phi: np.ndarray, y: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((Phi @ theta - y) ** 2)))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", nargs="+", type=float, default=[1e4, 1e5, 1e6])
+    ap.add_argument("--full", action="store_true", help="add 1e7 rows (about 1 GB of CSV; minutes)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--skip-import", action="store_true")
+    ap.add_argument("--skip-arx", action="store_true")
+    args = ap.parse_args()
+    sizes = [int(s) for s in args.sizes] + ([10**7] if args.full and 10**7 not in args.sizes else [])
+    print(f"cpus {os.cpu_count()}, load {os.getloadavg()[0]:.1f}; CPU s = process CPU time (best of {args.repeat}), "
+          "peak MB = resident high-water rise")
+    if not args.skip_import:
+        print(f"\nimport of a CSV of n rows x {CHANNELS + 1} columns")
+        print(f"{'rows':>10} {'MB':>7} | {'pandas CPU s':>12} {'peak MB':>8} | {'import CPU s':>12} {'peak MB':>8} | "
+              f"{'ratio':>5} | {'import, pandas parser':>21} {'ratio':>5}")
+        with tempfile.TemporaryDirectory() as tmp:
+            for n in sizes:
+                spec = write_recording(Path(tmp), n)
+                csv = spec.with_suffix(".csv")
+                repeat = args.repeat if n < 10**7 else 1
+                p_cpu, p_peak, frame = measure(lambda: pd.read_csv(csv), repeat)
+                del frame
+                i_cpu, i_peak, ds = measure(lambda: import_table(spec), repeat)
+                assert len(ds.frame) == n
+                del ds
+                arrow_min, readers.ARROW_MIN_BYTES = readers.ARROW_MIN_BYTES, 1 << 62  # the parser before issue 34
+                o_cpu, _, _ = measure(lambda: import_table(spec), repeat)
+                readers.ARROW_MIN_BYTES = arrow_min
+                fmt = lambda v: "n/a" if v is None else f"{v:.0f}"  # noqa: E731
+                print(f"{n:>10,} {csv.stat().st_size / 1e6:>7.1f} | {p_cpu:>12.2f} {fmt(p_peak):>8} | {i_cpu:>12.2f} "
+                      f"{fmt(i_peak):>8} | {i_cpu / p_cpu:>5.2f} | {o_cpu:>21.2f} {o_cpu / p_cpu:>5.2f}")
+                csv.unlink()
+    if not args.skip_arx:
+        from sklearn.linear_model import Ridge
+
+        print(f"\narx, na = nb = {LAGS}, nk = 1, 2 inputs ({LAGS * 3 + 1} parameters), one record of n samples")
+        print(f"{'samples':>10} | {'arx fit CPU s':>13} {'peak MB':>8} | {'lag matrix s':>12} {'Ridge CPU s':>11} "
+              f"{'peak MB':>8} | {'ratio':>5} | {'RMSE rel. diff':>14}")
+        params = {"order": LAGS, "nk": 1}
+        for n in sizes:
+            if n > 2 * 10**6 and not args.full:
+                continue
+            train = arx_samples(n)
+            method = ARX()
+            repeat = args.repeat if n < 10**7 else 1
+            a_cpu, a_peak, fitted = measure(lambda: method.fit(train, params, np.random.default_rng(0)), repeat)
+            traj = training_trajectories("arx", train)
+            t = time.process_time()
+            Phi, y = regression(traj, 0, LAGS, LAGS, 1)
+            build = time.process_time() - t
+            r_cpu, r_peak, ridge = measure(lambda: Ridge(alpha=1e-9, fit_intercept=False).fit(Phi, y), repeat)
+            ours = np.r_[fitted.a[0], fitted.b[0].ravel(), fitted.c[0]]
+            e_ours, e_ridge = one_step_rmse(ours, Phi, y), one_step_rmse(ridge.coef_, Phi, y)
+            fmt = lambda v: "n/a" if v is None else f"{v:.0f}"  # noqa: E731
+            print(f"{n:>10,} | {a_cpu:>13.2f} {fmt(a_peak):>8} | {build:>12.2f} {r_cpu:>11.2f} {fmt(r_peak):>8} | "
+                  f"{a_cpu / r_cpu:>5.2f} | {abs(e_ours - e_ridge) / e_ridge:>14.1e}")
+            del Phi, y, train
+
+
+if __name__ == "__main__":
+    main()
