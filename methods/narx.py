@@ -55,8 +55,8 @@ from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, 
 from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
-from enginebench.methods.narx_model import (KernelModel, NARXFit, Standardised, free_run, nystroem_ridge,
-                                            regressors, standardise)
+from enginebench.methods.narx_model import (KernelModel, LinearBasis, NARXFit, Standardised, free_run,
+                                            nystroem_ridge, regressors, standardise)
 from enginebench.samples import Samples
 
 NAME = "narx"
@@ -187,11 +187,12 @@ class NARX(GivenOrders, Method):
                     C, solver = Zk[centres], "nystroem"
                 else:
                     C, solver = Zk, "exact"
+                basis = LinearBasis(Phi) if Phi is not None else None  # one factorisation serves every gamma
                 gammas = np.array([points[i][3] for i in members])
                 for gamma in dict.fromkeys(gammas.tolist()):
                     idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
                     lams = np.array([points[i][4] for i in idx])
-                    betas, thetas, rank = nystroem_ridge(Zk, y, C, gamma / Zk.shape[1], lams * n_rows, Phi)
+                    betas, thetas, rank = nystroem_ridge(Zk, y, C, gamma / Zk.shape[1], lams * n_rows, basis)
                     info = {"kernel_rank": rank}
                     for pos, (i, lam) in enumerate(zip(idx, lams)):
                         th = thetas[pos] if thetas is not None else np.zeros(Z.shape[1] + 1)

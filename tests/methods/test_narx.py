@@ -272,3 +272,21 @@ def test_models_that_leave_their_limits_are_retired_without_changing_any_run_up_
             diverged += bool(out.size)
             np.testing.assert_array_equal(retired[g, s, :stop], full[g, s, :stop])
     assert diverged == 9  # three models on three segments: the retirement was exercised
+
+
+def test_the_linear_basis_solves_like_gelsd_with_full_rank_and_without():
+    """LinearBasis: back substitution on a full-rank Phi and the minimum-norm gelsd on a rank-deficient one give
+    LAPACK gelsd's least-squares solution; the projection leaves nothing in Phi's span."""
+    import scipy.linalg
+
+    from enginebench.methods.narx_model import LinearBasis
+
+    rng = np.random.default_rng(5)
+    Phi = rng.normal(size=(60, 4)) * [1.0, 1e3, 1e-2, 1.0]
+    B = rng.normal(size=(60, 3))
+    for P in (Phi, np.hstack([Phi, Phi[:, :1]])):  # the second has a repeated column: rank 4 of 5
+        basis = LinearBasis(P)
+        want = scipy.linalg.lstsq(P, B, lapack_driver="gelsd")[0]
+        np.testing.assert_allclose(basis.solve(B), want, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(P.T @ basis.project(B), 0.0, atol=1e-9)
+    assert LinearBasis(Phi).full and not LinearBasis(np.hstack([Phi, Phi[:, :1]])).full
