@@ -271,8 +271,3 @@ def egt_hybrid_markdown(table: pd.DataFrame, dataset: str = "", units: Mapping[s
     out.append("mean ± half-width of the Student-t 95% interval over n repetitions, test part. Literature rows: egt-hybrid "
                "paper, Tables 8-9, on confidential vessel data, NOT comparable with the synthetic dataset.")
     return "\n".join(out) + "\n"
-
-
-# the old names (papers called by their seed numbers), kept for existing callers
-seed003_table, seed003_paired, seed003_markdown = turboshaft_moe_table, turboshaft_moe_paired, turboshaft_moe_markdown
-seed000_table, seed000_markdown = egt_hybrid_table, egt_hybrid_markdown

@@ -10,7 +10,8 @@ from click.testing import CliRunner
 
 from enginebench.errors import DataError
 from enginebench.results.layouts import (
-    LITERATURE, THIS_RUN, read_literature, seed000_markdown, seed000_table, seed003_markdown, seed003_paired, seed003_table,
+    LITERATURE, THIS_RUN, egt_hybrid_markdown, egt_hybrid_table, read_literature, turboshaft_moe_markdown,
+    turboshaft_moe_paired, turboshaft_moe_table,
 )
 
 SEG_METRICS = ("rmae", "rmae_seg_sd", "rmae_seg_median", "rmae_seg_iqr", "diverged", "n_segments")
@@ -41,7 +42,7 @@ def trq():
 
 
 def test_seed003_cells_are_repetition_means_of_the_job_rows(trq):
-    table = seed003_table(trq, literature=False)
+    table = turboshaft_moe_table(trq, literature=False)
     assert list(table["method"]) == ["nfir", "moe[ideal]", "moe-nfir", "sindy-nfir"]  # the paper's row order
     ok = trq[trq["status"] == "ok"]
     for row in table.itertuples():
@@ -57,7 +58,7 @@ def test_seed003_cells_are_repetition_means_of_the_job_rows(trq):
 
 
 def test_seed003_literature_rows_come_from_the_published_tables(trq):
-    table = seed003_table(pd.concat([trq, job_rows({"nfir": 3.0}, target="WF")]))
+    table = turboshaft_moe_table(pd.concat([trq, job_rows({"nfir": 3.0}, target="WF")]))
     lit = table[table["source"] == LITERATURE].set_index(["target", "method"])
     assert lit.loc[("TRQ", "sindy-nfir"), "test_mean"] == pytest.approx(2.34)
     assert lit.loc[("TRQ", "moe[ideal]"), "val_iqr"] == pytest.approx(0.80)
@@ -70,7 +71,7 @@ def test_seed003_literature_rows_come_from_the_published_tables(trq):
 
 
 def test_seed003_paired_test_between_the_two_best_run_time_methods(trq):
-    p = seed003_paired(trq).iloc[0]
+    p = turboshaft_moe_paired(trq).iloc[0]
     assert (p["best"], p["second"]) == ("sindy-nfir", "moe-nfir")  # moe[ideal] is better but not available at run time
     ok = trq[(trq["status"] == "ok") & (trq["split"] == "test") & (trq["metric"] == "rmae")]
     wide = ok.pivot_table(index="repetition", columns="method", values="value").dropna(subset=["moe-nfir"])
@@ -81,12 +82,12 @@ def test_seed003_paired_test_between_the_two_best_run_time_methods(trq):
 
 
 def test_seed003_paired_with_one_repetition_says_why_there_is_no_test():
-    p = seed003_paired(job_rows({"a": 2.0, "b": 3.0}, reps=1)).iloc[0]
+    p = turboshaft_moe_paired(job_rows({"a": 2.0, "b": 3.0}, reps=1)).iloc[0]
     assert np.isnan(p["t_pvalue"]) and p["note"] == "only 1 paired repetition(s); a paired test needs at least 2"
 
 
 def test_seed003_markdown_labels_literature_and_ideal_and_bolds_the_best_run_time_row(trq):
-    md = seed003_markdown(seed003_table(trq), seed003_paired(trq), dataset="turboshaft (synthetic)")
+    md = turboshaft_moe_markdown(turboshaft_moe_table(trq), turboshaft_moe_paired(trq), dataset="turboshaft (synthetic)")
     lines = md.splitlines()
     assert lines[0] == "### TRQ: RMAE (%) over trajectories — turboshaft (synthetic)"
     ideal = next(line for line in lines if line.startswith("| *moe[ideal]* | this run"))
@@ -101,7 +102,7 @@ def test_seed003_needs_validation_or_test_rows():
     rows = job_rows({"nfir": 1.0})
     rows = rows[~rows["split"].isin(["validation", "test"])]
     with pytest.raises(DataError, match="turboshaft-moe layout: the run has no rmae rows on the validation or test part"):
-        seed003_table(rows)
+        turboshaft_moe_table(rows)
 
 
 # -- egt-hybrid (formerly seed 000) ---------------------------------------------------------------
@@ -120,7 +121,7 @@ def marine_rows(reps: int = 5) -> pd.DataFrame:
 
 def test_seed000_cells_are_means_with_student_t_half_widths():
     rows = marine_rows()
-    table = seed000_table(rows, literature=False)
+    table = egt_hybrid_table(rows, literature=False)
     assert list(zip(table["window"], table["method"])) == [(0.0, "krls"), (0.0, "mtl-krls"), (20.0, "krls"), (20.0, "mtl-krls")]
     for r in table.itertuples():
         for m in ("mae", "mape", "ppmcc"):
@@ -131,13 +132,13 @@ def test_seed000_cells_are_means_with_student_t_half_widths():
 
 
 def test_seed000_literature_rows_and_markdown():
-    table = seed000_table(marine_rows())
+    table = egt_hybrid_table(marine_rows())
     lit = table[table["source"] == LITERATURE]
     pm = lit[(lit["method"] == "pm") & (lit["window"] == 0)].iloc[0]
     assert (pm["mae"], pm["mae_ci"], pm["mape"], pm["ppmcc"]) == (33.0, 1.7, 11.7, 0.86)  # egt-hybrid Table 8
     assert len(lit) == 9 and set(lit["target"]) == {"t_exhaust_turbine_outlet"}
     assert len(read_literature("literature-seed000.csv")) == 18
-    md = seed000_markdown(table)
+    md = egt_hybrid_markdown(table)
     assert "| 0 | pm | literature (confidential data; not comparable) | 33 ± 1.7 | 11.7 ± 0.5 | 0.86 ± 0.05 | 30 |" in md
     assert "Student-t 95% interval" in md
 
@@ -171,10 +172,8 @@ def test_the_papers_stable_names_and_the_old_seed_names_are_the_same_layouts(tmp
     import click
 
     from enginebench.cli.layout import layout
-    from enginebench.results import layouts
     from enginebench.results.store import RunStore
 
-    assert layouts.seed003_table is layouts.turboshaft_moe_table and layouts.seed000_table is layouts.egt_hybrid_table
     assert read_literature("literature-turboshaft-moe.csv").equals(read_literature("literature-seed003.csv"))
     run = RunStore(tmp_path).create("trq", {"dataset": "turboshaft"}, "abc123", {}, 1)
     run.write_job("all", trq, {"status": "ok"})
