@@ -53,7 +53,6 @@ from dataclasses import dataclass, field, fields
 from typing import Any, Iterator, Sequence
 
 import numpy as np
-import pysindy as ps
 
 from enginebench.declare import Declaration, Field, Invalid, choice, listing, positive, whole
 from enginebench.errors import MethodError
@@ -241,6 +240,8 @@ def gram(prep: "_Prepared", order: int, degree: int) -> tuple[np.ndarray, np.nda
     """(powers, Theta' Theta, Theta' X_dot) of the order's degree-``degree`` library, formed once per preparation."""
     key = ("gram", int(order), int(degree))
     if key not in prep.memo:
+        import pysindy as ps  # here, not at the top: pysindy imports scikit-learn and scipy.stats (seconds)
+
         states, targets, _ = _system(prep, order)
         n_vars = states[0].shape[1] + (prep.u[0].shape[1] if prep.u else 0)
         powers = np.asarray(ps.PolynomialLibrary(degree=int(degree)).fit(np.zeros((1, n_vars))).powers_, dtype=np.int64)
@@ -423,6 +424,8 @@ class SINDy(Method):
             for i in range(k):
                 raw[i, int(np.flatnonzero((fitted.powers == np.eye(fitted.powers.shape[1], dtype=np.int64)[k + i])
                                             .all(axis=1))[0])] = 1.0
+        import pysindy as ps
+
         raw_names = ps.PolynomialLibrary(degree=fitted.params["degree"]).fit(
             np.zeros((1, fitted.powers.shape[1]))
         ).get_feature_names(list(fitted.state_names) + list(fitted.control_names))
@@ -696,6 +699,8 @@ class SINDy(Method):
         return second
 
     def _fit_prepared(self, prep: _Prepared, train: Samples, params: Params) -> SINDyFit:
+        import pysindy as ps
+
         p = self._params(params)
         order = p["order"]
         model = ps.SINDy(

@@ -33,14 +33,33 @@ open-loop simulation), ``explain`` (local systems, frozen stability, gates, desc
 ``model`` (the torch module), ``fitted`` (the trained record), ``method`` (the Method class).
 """
 
-from enginebench.methods.moe.explain import describe, frozen_stability, gate_weights, local_coefficients
-from enginebench.methods.moe.fitted import MoEFitted, build_network
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 from enginebench.methods.moe.method import MoE
-from enginebench.methods.moe.model import MixtureOfExperts, moe_loss, signed_softplus
-from enginebench.methods.moe.options import HYPERPARAMETERS, default_options, resolve_params
-from enginebench.methods.moe.preprocess import correction_factors, input_derivative
-from enginebench.methods.moe.simulation import affine_prefix_scan, simulate
-from enginebench.methods.moe.warmstart import lstsq_coefficients, warm_start
+
+_WHERE = {
+    "describe": "explain", "frozen_stability": "explain", "gate_weights": "explain", "local_coefficients": "explain",
+    "MoEFitted": "fitted", "build_network": "fitted",
+    "MixtureOfExperts": "model", "moe_loss": "model", "signed_softplus": "model",
+    "HYPERPARAMETERS": "options", "default_options": "options", "resolve_params": "options",
+    "correction_factors": "preprocess", "input_derivative": "preprocess",
+    "affine_prefix_scan": "simulation", "simulate": "simulation",
+    "lstsq_coefficients": "warmstart", "warm_start": "warmstart",
+}
+"""The package's names and their modules: imported on first use (PEP 562), so that loading the ``MoE`` class
+(``enginebench methods list``) imports no torch, scipy.signal or derivative."""
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        value = getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "HYPERPARAMETERS", "MixtureOfExperts", "MoE", "MoEFitted", "affine_prefix_scan", "build_network",

@@ -24,9 +24,6 @@ from collections import OrderedDict
 from typing import Any, Sequence
 
 import numpy as np
-from derivative import Kalman, TrendFiltered
-from sklearn.exceptions import ConvergenceWarning
-from threadpoolctl import threadpool_limits
 
 from enginebench.errors import DataError
 from enginebench.methods.numerics.tv_admm import integral_matrix, tv_solve
@@ -151,9 +148,16 @@ def differentiate(
         raise DataError(f"tv derivative: y holds NaN or inf (first at row {int(np.argwhere(~np.isfinite(Y))[0, 0])})")
     h = _check_time(t, "tv derivative")
     bounds = window_bounds(len(t), window, margin, first_keep)
+    # imported here, not at the top: the method modules that import this one (moe's options) load without
+    # derivative, scikit-learn and scipy.stats, so listing methods stays fast
+    from threadpoolctl import threadpool_limits
+
     if kind == "trend_filtered" and order == 0 and solver == "admm":
         with threadpool_limits(blas_threads, user_api="blas"):
             return _tv_admm(Y, h, alpha, bounds, max_iter=max_iter, kkt_tol=kkt_tol, quiet=quiet, flat=flat)
+    from derivative import Kalman, TrendFiltered
+    from sklearn.exceptions import ConvergenceWarning
+
     smooth = np.empty_like(Y)
     deriv = np.empty_like(Y)
     if kind == "kalman":
@@ -181,6 +185,8 @@ def _tv_admm(
     kkt_tol: float, quiet: bool, flat: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`differentiate`'s TV route: every (window, column) solved in one batch per window length."""
+    from sklearn.exceptions import ConvergenceWarning
+
     smooth = np.empty_like(Y)
     deriv = np.empty_like(Y)
     for length in sorted({hi - lo for lo, hi, _, _ in bounds}):
