@@ -168,7 +168,7 @@ def _map_section(page: _Page, simulated: Sequence[Any], units: dict[str, str]) -
         where = f"{sim.target}, split {sim.split}"
         figures.append(page.figure(
             operating_map_figure(m, title=f"{where}: free-run error over {names[0]} x {names[1]}",
-                                 unit=units.get(sim.target, "")),
+                                 unit=units.get(sim.target, ""), axis_units=units),
             f"{where}: RMSE per bin of {names[0]} x {names[1]} on the simulated {sim.part} records "
             f"({', '.join(sim.segment_ids)}), beside where the training rows lie"))
     page.add("map", "Error over the operating map", figures)
@@ -213,7 +213,7 @@ def _strip_section(page: _Page, raw: pd.DataFrame, metrics: Sequence[str], units
              if figs else [])
 
 
-def _validation_section(page: _Page, run: Run) -> str | None:
+def _validation_section(page: _Page, run: Run, units: dict[str, str] | None = None) -> str | None:
     """Validation curves from ``Run.selection_table()``; a note instead where the run has none."""
     from enginebench.reports.interactive_figures import validation_figure
 
@@ -225,12 +225,20 @@ def _validation_section(page: _Page, run: Run) -> str | None:
     figs = []
     for (target, window, split, method), part in table.groupby(["target", "window", "split", "method"], sort=False):
         where = f"{method}: {target}, window {float(window):g} s, split {split}"
-        fig = validation_figure(part, title=where)
+        fig = validation_figure(part, title=where, unit=_score_unit(str(target), units or {}, part))
         if fig is not None:
             figs.append(page.figure(fig, f"{where}: validation score over the searched grid (mean over repetitions "
                                          "and resamples; stars: the point each repetition chose)"))
     page.add("validation", "Validation curves", figs)
     return None if figs else "validation curves: every search had a single point"
+
+
+def _score_unit(target: str, units: dict[str, str], selection: pd.DataFrame) -> str:
+    """The unit of one target's validation scores (mae, rmse and rmae are in the target's unit); '' when unknown."""
+    from enginebench.results.metrics import CRITERIA
+
+    criteria = set(selection["criterion"].astype(str)) if "criterion" in selection else set()
+    return units.get(target, "") if criteria and criteria <= set(CRITERIA) else ""
 
 
 _STYLE = """
@@ -337,7 +345,7 @@ def write_interactive_report(
                             f"its curve is in {REPORT_FILE}")
     _importance_section(page, run, units)
     _strip_section(page, raw, metrics, units)
-    missing = _validation_section(page, run)
+    missing = _validation_section(page, run, units)
     if missing:
         result.notes.append(missing)
     result.figures = list(page.titles)

@@ -4,7 +4,11 @@ Pure functions: data in, a ``plotly.graph_objects.Figure`` or an HTML string out
 dataset or method is read here (``reports.interactive`` assembles the page).
 Long records are decimated for the browser by keeping each bucket's minimum and maximum
 row (``minmax_rows``), so spikes survive where striding would drop them; the factor is
-said in the figure's subtitle. plotly is the optional extra ``report``.
+said in the figure's subtitle. Traces of more than ``WEBGL_POINTS`` points are drawn with
+WebGL (``scattergl``), every line of a panel alike, and the numbers travel as float32 (a
+plot's 4 significant digits need no more), so a long record's page stays light. The
+measured trace is added last, so it is drawn on top of every model (first in the legend
+all the same). plotly is the optional extra ``report``.
 """
 
 from __future__ import annotations
@@ -19,8 +23,11 @@ import pandas as pd
 
 from enginebench.errors import DataError
 
-MAX_POINTS = 20_000
-"""Most points per trace sent to the browser (time series and scatters)."""
+MAX_POINTS = 5_000
+"""Most points per trace sent to the browser (time series and scatters): 2,500 min/max buckets, two per pixel
+column of a wide figure."""
+WEBGL_POINTS = 1_000
+"""Traces of more points are drawn with WebGL (``scattergl``): SVG slows down past a few thousand points."""
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
            "#bcbd22", "#17becf")
 DIVERGED = "(diverged)"
@@ -102,10 +109,21 @@ def _title(text: str, subtitle: str = "") -> dict:
     return {"text": html.escape(text) + sub, "x": 0.01, "xanchor": "left"}
 
 
-def _line_traces(go, x, y, segment, rows, name, color, dash, group, showlegend=True):
+def _f32(values: np.ndarray) -> np.ndarray:
+    """``values`` as float32: half the page's bytes; a plotted number shows 4 significant digits."""
+    return np.asarray(values, dtype=np.float32)
+
+
+def _scatter_type(go, points: int):
+    """``go.Scattergl`` for a trace of more than ``WEBGL_POINTS`` points, else ``go.Scatter`` (SVG)."""
+    return go.Scattergl if points > WEBGL_POINTS else go.Scatter
+
+
+def _line_traces(go, x, y, segment, rows, name, color, dash, group, showlegend=True, kind=None, **extra):
     xs, ys = gapped(x[rows], y[rows], segment[rows])
-    return go.Scatter(x=xs, y=ys, mode="lines", name=name, legendgroup=group, showlegend=showlegend,
-                      line={"color": color, "width": 1.1 if dash == "solid" else 1.4, "dash": dash})
+    kind = kind or go.Scatter
+    return kind(x=_f32(xs), y=_f32(ys), mode="lines", name=name, legendgroup=group, showlegend=showlegend,
+                line={"color": color, "width": 1.1 if dash == "solid" else 1.4, "dash": dash}, **extra)
 
 
 def time_series_figure(
@@ -129,7 +147,9 @@ def time_series_figure(
     segments to a dashed trace named "METHOD (diverged)" in the same legend group.
     ``weights`` (rows, k) become a stacked area subplot underneath (bucket means when
     decimated). Each trace keeps at most about ``max_points`` rows (``minmax_rows``);
-    the factor is said in the subtitle.
+    the factor is said in the subtitle. Lines are WebGL traces when they hold more than
+    ``WEBGL_POINTS`` points (all of them alike, so the measured one stays on top); the
+    measured trace is the last one drawn and the first in the legend.
     """
     go = _go()
     x = np.asarray(x, dtype=float)
@@ -151,8 +171,8 @@ def time_series_figure(
         fig = go.Figure()
     add = (lambda t: fig.add_trace(t, row=1, col=1)) if rows_panel == 2 else fig.add_trace
     measured = np.asarray(measured, dtype=float)
-    add(_line_traces(go, x, measured, segment, minmax_rows(measured, segment, factor), "measured", "black",
-                     "solid", "measured"))
+    measured_rows = minmax_rows(measured, segment, factor)
+    kind = _scatter_type(go, len(measured_rows))
     for k, (name, values) in enumerate(predicted.items()):
         values = np.asarray(values, dtype=float)
         color = PALETTE[k % len(PALETTE)]
@@ -162,7 +182,10 @@ def time_series_figure(
             if keep.size == 0:
                 continue
             rows = keep[minmax_rows(values[keep], segment[keep], factor)]
-            add(_line_traces(go, x, values, segment, rows, label, color, dash, name))
+            add(_line_traces(go, x, values, segment, rows, label, color, dash, name, kind=kind, legendrank=1000 + k))
+    # last, so it is drawn over every model; legendrank keeps it first in the legend
+    add(_line_traces(go, x, measured, segment, measured_rows, "measured", "black", "solid", "measured", kind=kind,
+                     legendrank=1))
     if weights is not None:
         w = np.asarray(weights, dtype=float)
         if w.ndim != 2 or w.shape[0] != n:
@@ -170,11 +193,11 @@ def time_series_figure(
         starts, means = bucket_means(w, segment, factor)
         for j in range(means.shape[1]):
             xs, ys = gapped(x[starts], means[:, j], segment[starts])
-            fig.add_trace(go.Scatter(x=xs, y=ys, mode="lines", stackgroup="weights", name=f"expert {j + 1}",
+            fig.add_trace(go.Scatter(x=_f32(xs), y=_f32(ys), mode="lines", stackgroup="weights", name=f"expert {j + 1}",
                                      legendgroup="weights", line={"width": 0.5, "color": PALETTE[(j + 3) % len(PALETTE)]},
                                      legendgrouptitle_text=f"weights: {weights_label}" if j == 0 else None),
                           row=2, col=1)
-        fig.update_yaxes(title_text=f"{weights_label} weights" if weights_label else "weights", range=[0, 1],
+        fig.update_yaxes(title_text=f"{weights_label} weights [-]" if weights_label else "weights [-]", range=[0, 1],
                          row=2, col=1)
         fig.update_xaxes(title_text=x_label, row=2, col=1)
         fig.update_yaxes(title_text=y_label, row=1, col=1)
@@ -204,17 +227,18 @@ def scatter_figure(
     rows = np.arange(n) if n <= max_points else np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
     fig = go.Figure()
     finite = [t[np.isfinite(t)]]
+    kind = _scatter_type(go, len(rows))
     for k, (name, values) in enumerate(predicted.items()):
         p = np.asarray(values, dtype=float)
         if p.shape != t.shape:
             raise DataError(f"scatter: {name!r} has shape {p.shape}; expected {t.shape} like the measured values")
         finite.append(p[np.isfinite(p)])
-        fig.add_trace(go.Scatter(x=t[rows], y=p[rows], mode="markers", name=name, opacity=0.55,
+        fig.add_trace(kind(x=_f32(t[rows]), y=_f32(p[rows]), mode="markers", name=name, opacity=0.55,
                                  marker={"size": 4, "color": PALETTE[k % len(PALETTE)]}))
     both = np.concatenate(finite)
     lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
     pad = 0.03 * (hi - lo) if hi > lo else 1.0
-    fig.add_trace(go.Scatter(x=[lo, hi], y=[lo, hi], mode="lines", name="identity", line={"color": "black", "width": 1}))
+    fig.add_trace(kind(x=[lo, hi], y=[lo, hi], mode="lines", name="identity", line={"color": "black", "width": 1}))
     subtitle = f"{len(rows)} of {n} rows (evenly spaced)" if len(rows) < n else f"{n} rows"
     fig.update_layout(title=_title(title, subtitle), height=560, width=640, margin={"l": 70, "r": 20, "t": 80, "b": 50},
                       xaxis={"title": f"measured {label}", "range": [lo - pad, hi + pad], "constrain": "domain"},
@@ -224,10 +248,13 @@ def scatter_figure(
     return fig
 
 
-def operating_map_figure(m, *, title: str = "", unit: str = ""):
+def operating_map_figure(m, *, title: str = "", unit: str = "", axis_units: Mapping[str, str] | None = None):
     """Heat maps of an ``operating_map.OperatingMap``: the training rows per bin, then each method's RMSE per bin
-    (one shared colour scale); bins with evaluated rows but no training row are marked x (extrapolation)."""
+    (one shared colour scale); bins with evaluated rows but no training row are marked x (extrapolation).
+    ``axis_units`` (column -> unit) labels the two inputs' axes ``name [unit]``."""
     from plotly.subplots import make_subplots
+
+    from enginebench.results.units import axis_label
 
     go = _go()
     methods = list(m.rmse)
@@ -254,8 +281,8 @@ def operating_map_figure(m, *, title: str = "", unit: str = ""):
         if len(ex):
             fig.add_trace(go.Scatter(x=xc[ex], y=yc[ey], mode="markers", marker={"symbol": "x", "color": "red", "size": 9},
                                      name="no training rows", showlegend=k == 0, hoverinfo="skip"), row=r, col=c)
-        fig.update_xaxes(title_text=m.x_name, row=r, col=c)
-        fig.update_yaxes(title_text=m.y_name, row=r, col=c)
+        fig.update_xaxes(title_text=axis_label(m.x_name, (axis_units or {}).get(m.x_name)), row=r, col=c)
+        fig.update_yaxes(title_text=axis_label(m.y_name, (axis_units or {}).get(m.y_name)), row=r, col=c)
     fig.update_layout(title=_title(title, "bins over the range of the training and evaluated rows; x: evaluated "
                                           "rows but no training row (extrapolation)"),
                       height=320 * nrows + 120, margin={"l": 60, "r": 20, "t": 110, "b": 50},
@@ -298,14 +325,15 @@ def strip_figure(rows: pd.DataFrame, *, title: str = "", y_label: str = "value")
     return fig
 
 
-def validation_figure(selection: pd.DataFrame, *, title: str = ""):
+def validation_figure(selection: pd.DataFrame, *, title: str = "", unit: str = ""):
     """Validation score against the searched hyperparameter of one (target, window, split, method), or None.
 
     ``selection`` has ``Run.selection_table()``'s columns (``param:<name>``..., repetition,
     point, resample, score, criterion, chosen). The x axis is the parameter with the most
     values (log scale when positive over at least a decade); each combination of the
     others is one line of the mean score over repetitions and resamples; each
-    repetition's chosen point is a star. None when the search had a single point.
+    repetition's chosen point is a star. None when the search had a single point. ``unit``: the
+    score's unit (the target's for one target; a joint job's scores are standardised, ``-``).
     """
     go = _go()
     params = [c for c in selection.columns if str(c).startswith(PARAM_PREFIX)]
@@ -336,7 +364,7 @@ def validation_figure(selection: pd.DataFrame, *, title: str = ""):
     criterion = str(selection["criterion"].iloc[0]) if "criterion" in selection else "score"
     fig.update_layout(title=_title(title), height=400, margin={"l": 70, "r": 20, "t": 60, "b": 50},
                       xaxis={"title": xcol[len(PARAM_PREFIX):], "type": "log" if log else "linear"},
-                      yaxis_title=f"validation {criterion}")
+                      yaxis_title=f"validation {criterion}" + (f" [{unit}]" if unit else ""))
     return fig
 
 

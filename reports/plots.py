@@ -114,7 +114,7 @@ def trajectory_figure(
     fig, axes = _canvas(size, dpi, len(panels), panels)
     div = float(scale) if scale is not None else 1.0
     ax = axes[0]
-    ax.plot(t, y / div, color="black", lw=1.4, label="true")
+    ax.plot(t, y / div, color="black", lw=1.4, label="true", zorder=3)  # drawn over every model
     styles = ["-", "--", ":", "-."]
     for k, (label, v) in enumerate(sims.items()):
         ax.plot(t, v / div, lw=1.1, ls=styles[k % len(styles)], label=label)

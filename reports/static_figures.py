@@ -45,15 +45,29 @@ def _time_axis(seconds: np.ndarray) -> tuple[np.ndarray, str]:
     return rel, "s"
 
 
-def time_trend_plot(predictions: Sequence[Predictions], path: str | Path, *, title: str = "",
+def time_trend_plot(predictions: Sequence[Predictions], path: str | Path, *, title: str = "", unit: str = "",
                     size: tuple[float, float] = (11.0, 4.5), dpi: int = 100) -> Path:
+    """``time_trend_figure`` written to ``path`` as a PNG; returns the path."""
+    fig = time_trend_figure(predictions, title=title, unit=unit, size=size, dpi=dpi)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    return path
+
+
+def time_trend_figure(predictions: Sequence[Predictions], *, title: str = "", unit: str = "",
+                      size: tuple[float, float] = (11.0, 4.5), dpi: int = 100):
     """Measured and predicted (one line per method) over time on the shared rows; lines break between segments.
 
-    All ``predictions`` must share the same rows (one (target, window, split, part)).
-    Returns the PNG path.
+    All ``predictions`` must share the same rows (one (target, window, split, part)). The
+    measured line is drawn over the models' (first in the legend); the y axis reads
+    ``target [unit]``. Returns the matplotlib Figure (on an Agg canvas).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure as MplFigure
+
+    from enginebench.reports.plots import _title
+    from enginebench.results.units import axis_label
 
     if not predictions:
         raise MethodError("time trend: no predictions to draw")
@@ -61,7 +75,7 @@ def time_trend_plot(predictions: Sequence[Predictions], path: str | Path, *, tit
     for p in predictions[1:]:
         if p.time.shape != first.time.shape or not np.array_equal(p.time, first.time):
             raise MethodError("time trend: the predictions do not share the same rows")
-    x, unit = _time_axis(first.time)
+    x, time_unit = _time_axis(first.time)
     breaks = np.flatnonzero(np.diff(first.segment) != 0) + 1
 
     def broken(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # NaN between segments: no joining line
@@ -70,26 +84,24 @@ def time_trend_plot(predictions: Sequence[Predictions], path: str | Path, *, tit
     fig = MplFigure(figsize=size, dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    ax.plot(*broken(first.truth), color="black", lw=1.2, label="measured")
+    ax.plot(*broken(first.truth), color="black", lw=1.2, label="measured", zorder=3)  # over every model
     styles = ["-", "--", ":", "-."]
     for k, p in enumerate(predictions):
         ax.plot(*broken(p.pred), lw=0.9, ls=styles[k % len(styles)], label=p.method)
-    ax.set_xlabel(f"time since the first {first.part} row ({unit})")
-    ax.set_ylabel(first.target)
+    ax.set_xlabel(f"time since the first {first.part} row ({time_unit})")
+    ax.set_ylabel(axis_label(first.target, unit))
     ax.legend(loc="best", fontsize="small", ncols=min(4, len(predictions) + 1))
     ax.grid(alpha=0.3)
-    if title:
-        ax.set_title(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
-    return path
+    _title(ax, title, size[0])
+    return fig
 
 
 def prediction_figures(predictions: list[Predictions], out: Path, run: Run) -> list[Figure]:
     """Per (target, window, split, part): a time trend of every method, then one scatter per method."""
     from enginebench.reports.plots import scatter_plot
+    from enginebench.results.units import run_units
 
+    units = run_units(run.info())  # {} for a run made before units were recorded: labels without units
     figures = []
     groups: dict[tuple, list[Predictions]] = {}
     for p in predictions:
@@ -97,7 +109,7 @@ def prediction_figures(predictions: list[Predictions], out: Path, run: Run) -> l
     for (target, window, split, part), group in groups.items():
         stem = f"{_safe(target)}__w{window:g}__{_safe(split)}"
         rep = group[0].repetition
-        path = time_trend_plot(group, out / f"{stem}__trend.png",
+        path = time_trend_plot(group, out / f"{stem}__trend.png", unit=units.get(target, ""),
                                title=f"{target}, window {window:g} s, {split}: {part} part (run {run.id}, "
                                      f"repetition {rep}, re-fitted)")
         figures.append(Figure(path, "trend", f"{target}, window {window:g} s, split {split}: measured and predicted "
@@ -105,7 +117,7 @@ def prediction_figures(predictions: list[Predictions], out: Path, run: Run) -> l
         for p in group:
             path = scatter_plot(p.truth, p.pred, out / f"{stem}__scatter__{_safe(p.method)}.png",
                                 title=f"{p.method}: {target}, window {window:g} s, {split} {part}",
-                                label=target)
+                                label=target, unit=units.get(target, ""))
             figures.append(Figure(path, "scatter", f"{p.method}: measured vs predicted {target}, window {window:g} s, "
                                                    f"split {split}, {part} part (repetition {rep}, re-fitted)"))
     return figures

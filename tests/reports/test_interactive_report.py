@@ -198,9 +198,10 @@ def test_time_series_and_scatter_carry_the_refitted_predictions(static_pages, st
     figs = _figures(page.path.read_text())
     series, scatter = figs[0], figs[1]
     names = [t["name"] for t in series["data"]]
-    assert names == ["measured", "naive-mean", "krls"]
+    assert names == ["naive-mean", "krls", "measured"]  # the measured trace drawn last: on top of every model
+    assert min(series["data"], key=lambda t: t["legendrank"])["name"] == "measured"  # and first in the legend
     preds = {p.method: p for p in static.predictions}
-    krls = _values(series["data"][2]["y"])
+    krls = _values(series["data"][1]["y"])
     # the test part's two segments are separated by one NaN: no line joins them
     assert len(krls) == len(preds["krls"].pred) + 1 and np.isnan(krls).sum() == 1
     np.testing.assert_allclose(krls[~np.isnan(krls)], preds["krls"].pred)
@@ -281,7 +282,25 @@ def test_time_series_figure_decimates_says_so_and_puts_units_on_the_axes():
     assert "min/max decimation 1:5" in data["layout"]["title"]["text"]
     lengths = {t["name"]: len(_values(t["y"])) for t in data["data"]}
     assert lengths["measured"] <= 20_000 + 1 and lengths["m"] <= 10_000 and lengths["m (diverged)"] <= 10_000
-    assert [t["line"]["dash"] for t in data["data"]] == ["solid", "solid", "dash"]
+    assert [t["line"]["dash"] for t in data["data"]] == ["solid", "dash", "solid"]
+    assert data["data"][-1]["name"] == "measured"  # drawn over the models
+    # more than WEBGL_POINTS points: every line is WebGL alike (a mix would draw the GL lines over the SVG ones)
+    assert {t["type"] for t in data["data"]} == {"scattergl"}
+    assert {t["y"]["dtype"] for t in data["data"]} == {"f4"}  # float32 on the page
+
+
+def test_long_records_are_decimated_to_max_points_and_short_ones_stay_svg():
+    n = 100_000
+    x = np.arange(n, dtype=float)
+    segment = np.zeros(n, int)
+    measured = np.sin(x / 50.0)
+    data = ia.figure_json(ia.time_series_figure(x, segment, measured, {"m": measured}))
+    assert all(len(_values(t["y"])) <= ia.MAX_POINTS + 1 for t in data["data"])
+    assert {t["type"] for t in data["data"]} == {"scattergl"}
+    scatter = ia.figure_json(ia.scatter_figure(measured, {"m": measured}))
+    assert len(_values(scatter["data"][0]["x"])) == ia.MAX_POINTS and scatter["data"][0]["type"] == "scattergl"
+    small = ia.figure_json(ia.time_series_figure(x[:500], segment[:500], measured[:500], {"m": measured[:500]}))
+    assert {t["type"] for t in small["data"]} == {"scatter"} and small["data"][-1]["name"] == "measured"
 
 
 def test_validation_figure_draws_the_grid_mean_and_the_chosen_points():
@@ -430,3 +449,35 @@ def test_simulation_page_maps_each_methods_error_over_the_first_two_inputs(simul
                              sim.train_inputs[names[0]], sim.train_inputs[names[1]])
     got = np.array(_values(heat[1]["z"]) if not isinstance(heat[1]["z"], list) else heat[1]["z"], dtype=float)
     np.testing.assert_allclose(got.reshape(10, 10), expected.rmse[list(sim.sims)[0]], equal_nan=True)
+
+
+def test_every_axis_of_the_page_names_its_unit(simulation_pages, simulation_run):
+    """Time series (value and time), scatters, metrics per repetition, operating map (both inputs) and validation
+    scores carry the unit the run recorded for their column."""
+    _, (_, page, _) = simulation_pages
+    units = run_units(simulation_run)
+    figs = _figures(page.path.read_text())
+    titles = [(ax, f["layout"][ax]["title"]["text"]) for f in figs for ax in f["layout"]
+              if ax.startswith(("xaxis", "yaxis")) and (f["layout"][ax].get("title") or {}).get("text")]
+    assert titles
+    for ax, title in titles:
+        assert re.search(r"\[[^\]]+\]|\((s|min|h|days)\)", title), (ax, title)
+    maps = [f for f in figs if "free-run error over" in str(f["layout"].get("title", ""))]
+    x_title = maps[0]["layout"]["xaxis"]["title"]["text"]
+    name = x_title.split(" [")[0]
+    assert x_title == axis_label(name, units[name])
+
+
+def test_validation_scores_and_operating_map_axes_take_the_given_units():
+    from enginebench.reports.operating_map import operating_map
+
+    rows = [{"repetition": 0, "point": i, "param:gamma": g, "resample": 0, "score": g, "criterion": "mae",
+             "chosen": i == 0} for i, g in enumerate((0.1, 1.0, 10.0))]
+    fig = ia.figure_json(ia.validation_figure(pd.DataFrame(rows), title="krls", unit="degC"))
+    assert fig["layout"]["yaxis"]["title"]["text"] == "validation mae [degC]"
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(0, 1, 200), rng.uniform(0, 1, 200)
+    m = operating_map(a, b, a + b, {"m": a}, a, b, names=("speed", "load"))
+    fig = ia.figure_json(ia.operating_map_figure(m, unit="kN m", axis_units={"speed": "rpm", "load": "%"}))
+    assert fig["layout"]["xaxis"]["title"]["text"] == "speed [rpm]"
+    assert fig["layout"]["yaxis"]["title"]["text"] == "load [%]"

@@ -97,3 +97,22 @@ def test_plot_run_redraws_a_stored_simulation_run(tmp_path, toy_parquet):
     assert img.shape[:2] == (700, 1000)
     with pytest.raises(MethodError, match="did not run method\\(s\\) sindy"):
         plot_run(result.run, tmp_path / "fig", methods=["sindy"])
+
+
+def test_png_trends_draw_the_measured_line_on_top_with_the_unit_on_the_axis():
+    from enginebench.reports.plots import trajectory_figure
+    from enginebench.reports.refit import Predictions
+    from enginebench.reports.static_figures import time_trend_figure
+
+    t = np.arange(100.0)
+    preds = [Predictions(target="t_exhaust", window=0.0, split="test", method=m, part="test", repetition=0, time=t,
+                         truth=np.sin(t), pred=np.sin(t) + k, segment=np.zeros(100, int))
+             for k, m in enumerate(("naive-mean", "ridge"))]
+    ax = time_trend_figure(preds, unit="degC").axes[0]
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    assert ax.get_ylabel() == "t_exhaust [degC]" and ax.get_xlabel() == "time since the first test row (s)"
+    assert lines["measured"].get_zorder() > max(lines[m].get_zorder() for m in ("naive-mean", "ridge"))
+    assert ax.get_legend_handles_labels()[1][0] == "measured"
+    ax = trajectory_figure(t, np.sin(t), {"arx": np.cos(t)}, None, ylabel="y", unit="bar").axes[0]
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    assert lines["true"].get_zorder() > lines["arx"].get_zorder() and ax.get_ylabel() == "y [bar]"
