@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 import numpy as np
 
 from enginebench.method import EXPLAIN_WEIGHTS, Method, Params, SearchSpace, SegmentPredictions
-from enginebench.methods.moe.explain import describe, gate_weights
-from enginebench.methods.moe.fitted import MoEFitted
-from enginebench.methods.moe.grid import fit_mixture_grid
 from enginebench.methods.moe.options import OPTIONS, resolve_params, search_space
-from enginebench.methods.moe.simulation import simulate
-from enginebench.methods.moe.training import fit_mixture
 from enginebench.samples import Samples
+
+if TYPE_CHECKING:  # the torch modules are imported in the methods that use them: listing methods imports no torch
+    from enginebench.methods.moe.fitted import MoEFitted
 
 
 class MoE(Method):
@@ -29,10 +27,13 @@ class MoE(Method):
     def search_space(self, data: Samples) -> SearchSpace:
         """The candidates of the ``*_grid`` options (defaults: 2-4 experts, beta2 0.1 or 1, lr 1e-3 or 1e-2;
         from the least-squares warm start a small rate refines, a large one may trade simulation accuracy for
-        derivative fit: the validation score decides)."""
-        return search_space(self.options)
+        derivative fit: the validation score decides); epochs 100, more on a short record
+        (``options.default_epochs``)."""
+        return search_space(self.options, None if data is None else len(data))
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> MoEFitted:
+        from enginebench.methods.moe.training import fit_mixture
+
         self.check_mode(train.mode)
         return fit_mixture(train, params, self.options, rng)
 
@@ -42,6 +43,8 @@ class MoE(Method):
         grid order of their first point): an ``epochs_grid`` of several values is early stopping chosen
         on the validation simulation error, for the price of the longest run. With ``batch_grid`` (the
         default) the runs train side by side in one batched loop (``grid.py``)."""
+        from enginebench.methods.moe.grid import fit_mixture_grid
+
         runs: dict[tuple[Any, ...], dict[int, list[int]]] = {}  # run -> epochs -> grid indices
         for i, params in enumerate(grid):
             hp = resolve_params(params)
@@ -55,14 +58,20 @@ class MoE(Method):
                     yield i, fitted
 
     def predict(self, fitted: MoEFitted, data: Samples) -> SegmentPredictions:
+        from enginebench.methods.moe.simulation import simulate
+
         self.check_mode(data.mode)
         traj, _, diverged = simulate(fitted, data)
         return SegmentPredictions([y[s.rows] for y, s in zip(traj, data.segments)], diverged)
 
     def describe(self, fitted: MoEFitted) -> dict[str, Any]:
         """Expert count, hyperparameters, local linear systems and the frozen-stability verdict."""
+        from enginebench.methods.moe.explain import describe
+
         return describe(fitted)
 
     def explain(self, fitted: MoEFitted, data: Samples) -> dict[str, list[np.ndarray]]:
         """The gate as ``weights`` (one (rows, experts) array per segment, along the simulated trajectory)."""
+        from enginebench.methods.moe.explain import gate_weights
+
         return {EXPLAIN_WEIGHTS: gate_weights(fitted, data)}

@@ -40,6 +40,11 @@ HYPERPARAMETERS: dict[str, Any] = {
 
 DERIVATIVE_WINDOW_SAMPLES = 24
 """``derivative_window = None``: the input derivatives' window in samples (2 s at 12 Hz)."""
+MIN_GRADIENT_STEPS = 2000
+"""``epochs_grid = None``: the fewest gradient steps a default training takes. 100 epochs of 512-row minibatches
+give them from 10,240 training rows on (the turboshaft-moe paper's records are far longer); on a record of 1,000
+rows (two minibatches an epoch) 100 epochs would be 200 steps, too few for the gate and experts to move far from
+their least-squares start, so the epochs follow the record: ceil(2000 / minibatches per epoch)."""
 SHOOTING_WINDOW_SAMPLES = 240
 """``shooting_window = None``: the simulation-error windows' length in sample steps (20 s at 12 Hz)."""
 
@@ -180,8 +185,10 @@ OPTIONS = Declaration(
             searches=("gate_hidden",), message=_grid_message("whole numbers >= 1", "[8, 16, 32]")),
     listing("lr_grid", (1e-3, 1e-2), "Adam learning rates searched", items="float", low=0, low_open=True,
             searches=("lr",), message=_grid_message("numbers > 0", "[1e-4, 1e-3, 1e-2]")),
-    listing("epochs_grid", (HYPERPARAMETERS["epochs"],), "training epochs searched", items="int", low=1,
-            searches=("epochs",), message=_grid_message("whole numbers >= 1", "[50, 100, 150]")),
+    listing("epochs_grid", None, f"training epochs searched; None = {HYPERPARAMETERS['epochs']}, or on a short "
+            f"record as many as give {MIN_GRADIENT_STEPS} gradient steps (epochs x minibatches of batch_size rows)",
+            items="int", low=1, nullable=True, searches=("epochs",),
+            message=_grid_message("whole numbers >= 1", "[50, 100, 150]")),
 )
 """Every option of ``moe``: default, kind, unit and meaning."""
 
@@ -191,10 +198,20 @@ def default_options() -> dict[str, Any]:
     return OPTIONS.defaults()
 
 
-def search_space(options: Params) -> dict[str, np.ndarray]:
+def default_epochs(rows: int, batch_size: int) -> int:
+    """``epochs_grid = None``'s epochs for ``rows`` training rows: 100, or enough for ``MIN_GRADIENT_STEPS`` steps."""
+    batches = max(1, -(-int(rows) // int(batch_size)))
+    return max(int(HYPERPARAMETERS["epochs"]), -(-MIN_GRADIENT_STEPS // batches))
+
+
+def search_space(options: Params, rows: int | None = None) -> dict[str, np.ndarray]:
     """The searched hyperparameters' candidates from the ``*_grid`` options (integers as int arrays, the rest
-    float), in ``HYPERPARAMETERS`` order."""
-    return {name: np.array(options[GRID_OPTIONS[name]], dtype=int if isinstance(HYPERPARAMETERS[name], int) else float)
+    float), in ``HYPERPARAMETERS`` order; ``epochs_grid = None`` from the ``rows`` training rows
+    (``default_epochs``; 100 when they are not known)."""
+    values = {name: options[GRID_OPTIONS[name]] for name in HYPERPARAMETERS}
+    if values["epochs"] is None:
+        values["epochs"] = [HYPERPARAMETERS["epochs"] if rows is None else default_epochs(rows, options["batch_size"])]
+    return {name: np.array(values[name], dtype=int if isinstance(HYPERPARAMETERS[name], int) else float)
             for name in HYPERPARAMETERS}
 
 

@@ -314,3 +314,17 @@ def test_moe_searched_hyperparameters_are_options_with_ranges():
         MoE(experts_grid=[0, 2])
     with pytest.raises(MethodError, match=r"option lr_grid=\[\] must be a non-empty list of numbers > 0"):
         MoE(lr_grid=[])
+
+
+def test_moe_default_epochs_follow_the_record_length():
+    """epochs_grid = None: 100 epochs where they give 2,000 gradient steps (10,240 rows of 512), more below; a given
+    grid is kept as given."""
+    from enginebench.methods.moe import MoE
+    from enginebench.methods.moe.options import default_epochs, search_space
+
+    assert default_epochs(1024, 512) == 1000 and default_epochs(10240, 512) == 100 and default_epochs(10, 512) == 2000
+    assert default_epochs(10241, 512) == 100 and default_epochs(5000, 512) == 200
+    options = MoE().options
+    assert search_space(options, 1024)["epochs"].tolist() == [1000]
+    assert search_space({**options, "epochs_grid": [50, 100]}, 1024)["epochs"].tolist() == [50, 100]
+    assert search_space(options)["epochs"].tolist() == [100]
