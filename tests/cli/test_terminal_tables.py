@@ -134,11 +134,14 @@ def test_a_grid_edge_pick_is_said_once_the_job_warning_left_out():
 HEAVY = ("torch", "scipy.stats", "plotly", "sklearn", "matplotlib")
 
 
-@pytest.mark.parametrize("command", [["runs", "list"], ["runs", "show"], ["table"], ["datasets", "list"]],
+@pytest.mark.parametrize("command", [["runs", "list"], ["runs", "show"], ["table"], ["datasets", "list"],
+                                     ["methods", "list"], ["methods", "show", "gru"], ["methods", "show", "moe"],
+                                     ["methods", "show", "sindy"]],
                          ids=" ".join)
 def test_printing_stored_results_imports_no_heavy_library(store, command):
     """Commands that print stored facts import none of torch, scipy.stats, plotly, scikit-learn or matplotlib
-    (each in a fresh interpreter; paired differences without ties keep the Wilcoxon test off scipy.stats)."""
+    (each in a fresh interpreter; paired differences without ties keep the Wilcoxon test off scipy.stats). Listing
+    methods loads every method class, torch's and scikit-learn's too, without importing those libraries."""
     args = command + (["--store", str(store.root)] if command[0] in ("runs", "table") else [])
     script = (
         "import sys\n"
@@ -152,3 +155,7 @@ def test_printing_stored_results_imports_no_heavy_library(store, command):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "HEAVY []", done.stdout + done.stderr
+    if command == ["methods", "list"]:  # every class loaded (a class that failed to import would say BROKEN)
+        assert "BROKEN" not in done.stdout
+        assert {"gru", "neural-ss", "moe", "sindy", "krls", "ridge", "mtl-krls"} <= {
+            line.split()[0] for line in done.stdout.splitlines() if line.strip()}
