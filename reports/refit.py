@@ -62,20 +62,15 @@ def refit_predictions(
     to evenly spaced rows. Returns the predictions and notes on what was skipped.
     """
     from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples
-    from enginebench.reports.trajectories import weights_of
-    from enginebench.experiments.runner import prepare
     from enginebench.experiments.spec import from_dict
+    from enginebench.reports.trajectories import prepared, weights_of
 
     spec = from_dict(run.config(), origin=f"run {run.id}")
     if spec.mode == "simulation":
         raise MethodError(f"run {run.id} is a simulation run; its trajectories are redrawn by 'enginebench plots'")
     if max_rows < 1:
         raise MethodError(f"max_rows must be >= 1, got {max_rows}")
-    ctx = prepare(spec)
-    chosen = list(methods) if methods else list(spec.methods)
-    unknown = [m for m in chosen if m not in ctx.methods]
-    if unknown:
-        raise MethodError(f"run {run.id} did not run method(s) {', '.join(unknown)}; it ran {', '.join(ctx.methods)}")
+    ctx, chosen = prepared(run, spec, methods)
     out: list[Predictions] = []
     notes: list[str] = []
     for (target, window, split), problem in ctx.problems.items():

@@ -19,14 +19,14 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from enginebench.errors import EngineBenchError, MethodError
-from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples
+from enginebench.experiments.jobs import JOINT, Context, job_for, refit_stored_job, training_samples
 from enginebench.experiments.runner import prepare
-from enginebench.experiments.spec import from_dict
+from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.method import EXPLAIN_WEIGHTS, Method
 from enginebench.reports.plots import scatter_plot, trajectory_plot
 from enginebench.results.run_folder import Run
@@ -89,6 +89,17 @@ class Simulated:
     """The first inputs over the repetition's training rows (for the operating map)."""
 
 
+def prepared(run: Run, spec: ExperimentSpec, methods: Sequence[str] | None) -> tuple[Context, list[str]]:
+    """A stored run's context prepared again, and the methods to re-fit: ``methods``, or all the run ran
+    (MethodError naming one it did not run). Both re-fits of the reports start here."""
+    ctx = prepare(spec)
+    chosen = list(methods) if methods else list(spec.methods)
+    unknown = [m for m in chosen if m not in ctx.methods]
+    if unknown:
+        raise MethodError(f"run {run.id} did not run method(s) {', '.join(unknown)}; it ran {', '.join(ctx.methods)}")
+    return ctx, chosen
+
+
 def simulate_run(
     run: Run,
     methods: list[str] | None = None,
@@ -105,11 +116,7 @@ def simulate_run(
     spec = from_dict(run.config(), origin=f"run {run.id}")
     if spec.mode != "simulation":
         raise MethodError(f"run {run.id} is in mode {spec.mode!r}; trajectory plots are for simulation runs")
-    ctx = prepare(spec)
-    chosen = methods or list(spec.methods)
-    unknown = [m for m in chosen if m not in ctx.methods]
-    if unknown:
-        raise MethodError(f"run {run.id} did not run method(s) {', '.join(unknown)}; it ran {', '.join(ctx.methods)}")
+    ctx, chosen = prepared(run, spec, methods)
     if trajectories < 1:
         raise MethodError(f"trajectories must be >= 1, got {trajectories}")
     out: list[Simulated] = []
