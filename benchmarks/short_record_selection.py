@@ -11,6 +11,7 @@ Compare two checkouts by running this script with each on ``PYTHONPATH`` (or onc
 after a change): the figures are the same work on the same seeded records.
 
 Usage: python benchmarks/short_record_selection.py [--seeds 0 1 2] [--methods naive-mean arx narx]
+       [--option moe.epochs_grid=[100]]
 """
 
 from __future__ import annotations
@@ -91,8 +92,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--methods", nargs="+", default=["naive-mean", "arx", "narx"])
+    parser.add_argument("--option", action="append", default=[], metavar="METHOD.KEY=TOML",
+                        help="an option of one method, e.g. moe.epochs_grid=[100] (the setting before a change)")
     args = parser.parse_args()
-    methods = "\n".join(f"[methods.{m}]" for m in args.methods)
+    options: dict[str, list[str]] = {m: [] for m in args.methods}
+    for item in args.option:
+        key, value = item.split("=", 1)
+        method, option = key.rsplit(".", 1)
+        options[method].append(f"{option} = {value}")
+    methods = "\n".join("\n".join([f"[methods.{m}]", *options[m]]) for m in args.methods)
     rmse: dict[str, list[float]] = {m: [] for m in args.methods}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
