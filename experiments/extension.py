@@ -15,7 +15,7 @@ The step is the grid's own spacing at that edge: a ratio where the grid is log-s
 difference otherwise, whole numbers where the grid holds whole numbers. It doubles each
 time the same edge is pushed again, so ten decades past a grid take a handful of rounds,
 and the last step stops at the bound. Once the best value is inside, a gap the doubled
-steps left next to it is halved until it is no wider than the grid's spacing (a bracket
+steps left next to it is halved until it is no wider than the grid's median spacing (a bracket
 closed in on, as in a line search). The search ends when no selected value sits at an
 extendable edge or next to a wide gap, when a value has reached its bound (the warning then
 names the bound, not "widen the grid") or after ``MAX_ROUNDS`` rounds.
@@ -51,11 +51,14 @@ class Axis:
     pushes: dict[str, int] = field(default_factory=lambda: {"lower": 0, "upper": 0})
     added: list[float] = field(default_factory=list)
     step: float = 0.0
-    """The grid's finest spacing (in log10 on a log axis): gaps left by doubled steps are refined down to it."""
+    """The grid's typical (median) spacing, in log10 on a log axis: gaps left by doubled steps are refined down to
+    it. The median, not the finest: a data-derived grid may hold two close values (nfir's and boost-fir's horizons:
+    M/2, M, 2M and the ladder's best, which may lie next to M), and refining every gap down to theirs scored a
+    dozen near-equal horizons on every fold."""
 
     def __post_init__(self) -> None:
         if not self.step:
-            self.step = float(np.diff(self._coordinates(self.values)).min())
+            self.step = float(np.median(np.diff(self._coordinates(self.values))))
 
     def _coordinates(self, values: list[float]) -> np.ndarray:
         return np.log10(values) if self.log else np.asarray(values, dtype=float)

@@ -189,3 +189,14 @@ def test_the_paper_protocol_experiments_keep_their_grids():
     for name in ("marine-diesel-egt", "turboshaft-wf", "turboshaft-trq", "turboshaft-trq-ideal"):
         assert load_spec(name).selection.extend is False, name
     assert load_spec("marine-diesel-egt-quick").selection.extend is True
+
+
+def test_gaps_are_refined_down_to_the_grids_median_spacing_not_its_finest():
+    """A data-derived grid with two close values (horizons 2.0 and 2.1 s) does not make every gap refined down to
+    their 0.02-decade spacing: the median spacing (0.29 decades here) is the resolution."""
+    axis = Axis("horizon", [1.0, 2.0, 2.1, 4.0, 8.0], log=True, whole=False, low=0.1, high=100.0)
+    assert abs(axis.step - np.median(np.diff(np.log10([1.0, 2.0, 2.1, 4.0, 8.0])))) < 1e-12
+    new = axis.refinement(4.0)  # the 4 -> 8 gap (0.30 decades) is wider than 0.29: halved once
+    assert new is not None and abs(new - np.sqrt(32.0)) < 1e-9
+    axis.insert(new)
+    assert axis.refinement(new) is None  # 0.15-decade gaps either side: done
