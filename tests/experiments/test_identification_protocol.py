@@ -318,8 +318,9 @@ c_grid = [-2.0, -1.0, 0.0]
     assert result.exit_code == 1, result.output
     out = result.output
     assert "failed (2 jobs): test-keyerror: KeyError: \"missing column 'zz'\"" in out
-    assert ("warning (2 jobs): test-probe: c = 0 selected at the upper edge of its grid [-2 .. 0]; the optimum may lie "
-            "beyond it: widen the grid") in out
+    # the edge pick is said once, as the run's grid-edge note (the jobs' own edge warnings are not repeated)
+    assert "grid edge: test-probe: c at the upper edge of its grid (0) in 2 of 2 repetitions: widen its grid" in out
+    assert "selected at the upper edge" not in out
     assert out.strip().splitlines()[-1].startswith("error: every job of test-keyerror failed (reasons above); run 2")
     # the same run without the failing method exits 0
     ok = CliRunner().invoke(cli, ["run", str(exp), "-j", "1", "--quiet", "--methods", "test-probe"])

@@ -294,7 +294,7 @@ CLI = [
     ("run-seed-negative", ["run", "{exp}", "--seed", "-1", "-q"], "--seed"),
     ("run-jobs-zero", ["run", "{exp}", "--jobs", "0", "-q"], "--jobs"),
     ("run-train-size-negative", ["run", "{exp}", "--train-size", "-1", "-q"], "--train-size"),
-    ("run-executor-unknown", ["run", "{exp}", "--executor", "slurm", "-q"], "--executor"),
+    ("run-executor-unknown", ["run", "{exp}", "--executor", "no-such-executor", "-q"], "--executor"),
     ("run-methods-unknown", ["run", "{exp}", "--methods", "nope", "-q", "-j", "1"], "nope"),
     ("run-methods-empty", ["run", "{exp}", "--methods", ",", "-q", "-j", "1"], "methods"),
     ("run-resume-unknown", ["run", "--resume", "nope", "-q"], "nope"),
