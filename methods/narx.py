@@ -234,7 +234,8 @@ class NARX(GivenOrders, Method):
             for f_idx, f in enumerate(fits):
                 for r, i in enumerate(members):
                     n = lengths[r]
-                    traj = runs[f_idx * k:(f_idx + 1) * k, r, :n].T * f.y_std + f.y_mean
+                    with np.errstate(over="ignore", invalid="ignore"):  # a run that blew up is held just below
+                        traj = runs[f_idx * k:(f_idx + 1) * k, r, :n].T * f.y_std + f.y_mean
                     traj[:N] = windows[i]  # the window is measured (exactly, not through the scaling)
                     traj, bad = f.envelope.clip_run(traj, N)
                     results[f_idx][i] = traj[data.segments[i].rows]
