@@ -67,7 +67,11 @@ def methods_show(name: str, plugins) -> None:
 def export_line(cls) -> str:
     """Whether the method's fitted models can be exported (``enginebench export``) and stored (docs/models.md)."""
     from enginebench.methods.export import exportable
+    from enginebench.methods.export.onnx import onnx_exportable
 
     if exportable(cls) and "simulation" in cls.modes:
         return "export: FMU (FMI 2.0 co-simulation from its C step: enginebench export RUN --method NAME --fmu OUT.fmu)"
-    return "export: none (this method offers no C step to build an FMU from)"
+    if onnx_exportable(cls) and "simulation" in cls.modes:
+        return ("export: ONNX (its step and initial state as ONNX graphs, checked with onnxruntime: enginebench "
+                "export RUN --method NAME --onnx OUT.onnx)")
+    return "export: none (this method offers no C step to build an FMU from, nor a torch graph for ONNX)"

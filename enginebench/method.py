@@ -194,6 +194,11 @@ class Method:
         real-time figures; None (the default) when the method cannot be exported."""
         return None
 
+    def onnx_model(self, fitted: Any) -> Any:
+        """Optional hook: the fitted model's initial state and step as a torch network (a
+        ``methods.export.onnx.OnnxModel``) for ``export --onnx``; None (the default) when it has none."""
+        return None
+
     def fit_grid(
         self, train: Samples, grid: Sequence[Params], rng: np.random.Generator
     ) -> Iterator[tuple[int, Any]]:

@@ -67,6 +67,16 @@ class StateSpaceNet(nn.Module):
             return u.new_zeros((u.shape[0], 0, self.ny))
         return torch.stack(ys, dim=1)
 
+    def initial_state(self, past_u: torch.Tensor, past_y: torch.Tensor) -> torch.Tensor:
+        """x(t0) (batch, nx) from the encoder window (the exported ONNX encoder, ``methods/export/onnx.py``)."""
+        return self.encoder(past_u, past_y)
+
+    def step(self, u: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One step of ``forward`` as its own graph: (y(t), x(t+1)) from u(t) (batch, nu) and x(t) (batch, nx)."""
+        z = torch.cat([x, u], dim=-1)
+        out = self.linear(z) + self.mlp(z)
+        return out[:, self.nx:], out[:, :self.nx]
+
 
 class GRUNet(nn.Module):
     """``gru``: encoder to the GRU's hidden state, one GRU layer over the inputs, linear readout."""
@@ -84,6 +94,15 @@ class GRUNet(nn.Module):
             return u.new_zeros((u.shape[0], 0, self.readout.out_features))
         states, _ = self.gru(u, h0.unsqueeze(0).contiguous())
         return self.readout(states)
+
+    def initial_state(self, past_u: torch.Tensor, past_y: torch.Tensor) -> torch.Tensor:
+        """h(t0 - 1) (batch, nx) from the encoder window (the exported ONNX encoder, ``methods/export/onnx.py``)."""
+        return torch.tanh(self.encoder(past_u, past_y))
+
+    def step(self, u: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One step of ``forward`` as its own graph: (y(t), h(t)) from u(t) (batch, nu) and h(t - 1) (batch, nx)."""
+        states, last = self.gru(u.unsqueeze(1), h.unsqueeze(0).contiguous())
+        return self.readout(states[:, 0]), last[0]
 
 
 __all__ = ["Encoder", "GRUNet", "StateSpaceNet", "mlp"]

@@ -405,6 +405,18 @@ class NeuralSimulator(Method):
                     out[i] = traj[np.asarray(s.rows)]
         return SegmentPredictions(out, flags)  # type: ignore[arg-type]
 
+    def onnx_model(self, fitted: NeuralSimFit) -> Any:
+        """The network's encoder and one step (``initial_state``, ``step``) for ``export --onnx``."""
+        import torch
+
+        from enginebench.methods.export.onnx import OnnxModel
+
+        return OnnxModel(method=self.name, inputs=fitted.input_names, targets=fitted.target_names,
+                         lags=fitted.config.lags, n_state=fitted.config.nx, dtype=fitted.dtype,
+                         network=self._rebuild(fitted, torch.device("cpu")), u_mean=fitted.u_mean,
+                         u_std=fitted.u_std, y_mean=fitted.y_mean, y_std=fitted.y_std,
+                         lower=fitted.envelope.lower, upper=fitted.envelope.upper)
+
     def describe(self, fitted: NeuralSimFit) -> dict[str, Any]:
         """Sizes, training facts (steps, early stopping, validation error), standardisation, envelope."""
         import torch
