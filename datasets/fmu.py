@@ -206,6 +206,35 @@ class SimulationFailed(DataError):
     """The FMU failed during a simulation (the message names the segment and the time)."""
 
 
+_LOG_TO = threading.local()
+"""``messages``: the list the FMU messages of this thread go to (the simulating runtime's, else None)."""
+_KEPT_CALLBACKS: list[Any] = []
+"""The callbacks (logger) of the latest FMI 1.0/2.0 instance made here, kept for the process. fmpy formats such an
+FMU's messages through a native proxy that holds the latest logger it was given in one process-wide slot, and
+sends every later message there, those of instances on fmpy's default callbacks included: a logger freed with its
+instance left the slot dangling, and the next FMU message in the process was a segfault. So the logger is one
+module-level function (``_fmu_log``), its ctypes callback kept alive, and it hands a message to the runtime
+simulating on the calling thread."""
+
+
+def _fmu_log(*args: Any) -> None:
+    # FMI 2.0 loggers get (env, instance, status, category, message), FMI 3.0 ones (env, status, category, message)
+    status, message = args[-3], args[-1]
+    messages = getattr(_LOG_TO, "messages", None)
+    if messages is not None and status >= 2 and message:
+        messages.append(message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message))
+
+
+@contextlib.contextmanager
+def _messages_to(messages: list[str]) -> Iterator[None]:
+    """The FMU messages of this thread go to ``messages`` inside the block."""
+    before, _LOG_TO.messages = getattr(_LOG_TO, "messages", None), messages
+    try:
+        yield
+    finally:
+        _LOG_TO.messages = before
+
+
 class _Runtime:
     """One process's extracted FMU and its instance, reset between simulations."""
 
@@ -220,19 +249,15 @@ class _Runtime:
         self.lock = threading.Lock()
         self.messages: list[str] = []
 
-    def _log(self, *args: Any) -> None:
-        # FMI 2.0 loggers get (env, instance, status, category, message), FMI 3.0 ones (env, status, category, message)
-        status, message = args[-3], args[-1]
-        if status >= 2 and message:
-            self.messages.append(message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message))
-
     def ready(self) -> Any:
         """The instance, new or reset."""
         from fmpy.simulation import instantiate_fmu
 
         if self.instance is None:
             self.instance = instantiate_fmu(self.unzipdir, self.fmu.description, self.fmu.fmi_type,
-                                            logger=self._log)
+                                            logger=_fmu_log)
+            if getattr(self.instance, "callbacks", None) is not None:  # FMI 1.0/2.0: see _KEPT_CALLBACKS
+                _KEPT_CALLBACKS[:] = [self.instance.callbacks]
             self.used = False
         elif self.used:
             self.instance.reset()
@@ -374,7 +399,7 @@ class FMUPhysicalModel:
             return True
 
         callback_errors: list[str] = []
-        with rt.lock, _quiet_callbacks(callback_errors):
+        with rt.lock, _quiet_callbacks(callback_errors), _messages_to(rt.messages):
             try:
                 result = fmpy.simulate_fmu(
                     rt.unzipdir, model_description=fmu.description, fmu_instance=rt.ready(), fmi_type=fmu.fmi_type,

@@ -7,6 +7,7 @@ so for a constant input T(t) = T_amb + K u (1 - exp(-t / tau)).
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -414,3 +415,51 @@ def test_a_failing_fmu_names_the_time_and_the_segment_and_recovers(request, vers
     if after is not None:
         assert f"after t = {after} s" in message
     np.testing.assert_allclose(pm.simulate(pm.parameters, seg, 1.0)["temp"], analytic(t, 1.0, 5.0, 3.0), rtol=1e-5)
+
+
+def test_each_fmu_model_keeps_its_own_failure_message_when_another_was_opened_after_it(thermal_fmu):
+    # fmpy sends every FMI 2.0 message to the logger it was given last: the first model's reason must still be its own
+    from enginebench.datasets.fmu import SimulationFailed
+
+    first, second = FMUPhysicalModel(config(thermal_fmu)), FMUPhysicalModel(config(thermal_fmu))
+    seg = {"time": np.arange(20, dtype=float), "power": np.ones(20)}
+    first.simulate(first.parameters, seg, 1.0)
+    second.simulate(second.parameters, seg, 1.0)
+    with pytest.raises(SimulationFailed, match=r"\(thermal: failure injected\)"):
+        first.simulate({**first.parameters, "fail_time": 7.5}, seg, 1.0)
+
+
+FREED_THEN_DEFAULT = """
+import gc, json, sys
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+from enginebench.datasets.fmu import FMUPhysicalModel
+cfg = json.loads(sys.argv[1])
+pm = FMUPhysicalModel(cfg)
+pm.simulate(pm.parameters, {"time": np.arange(5.0), "power": np.ones(5)}, 1.0)
+del pm
+gc.collect()
+md = read_model_description(cfg["fmu"])
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(cfg["fmu"]), modelIdentifier=md.coSimulation.modelIdentifier,
+                instanceName="other")
+fmu.instantiate()
+fmu.setupExperiment(startTime=0.0)
+fmu.enterInitializationMode()
+fmu.setReal([6], [0.5])
+fmu.exitInitializationMode()
+try:
+    fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=1.0)
+except Exception as exc:
+    print("refused:", exc)
+"""
+
+
+def test_an_fmu_message_after_a_model_was_freed_does_not_crash_the_process(thermal_fmu):
+    # a model's logger freed with it left fmpy's one logger slot dangling: the next FMU message was a segfault
+    # (an FMU of another module, on fmpy's default callbacks, logging an error); in a child process, as it may crash
+    cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in config(thermal_fmu).items()}
+    out = subprocess.run([sys.executable, "-c", FREED_THEN_DEFAULT, json.dumps(cfg)], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, f"exit {out.returncode}: {out.stderr[-2000:]}"
+    assert "refused: fmi2DoStep failed with status 3 (error)" in out.stdout
