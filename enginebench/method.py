@@ -194,6 +194,15 @@ class Method:
         real-time figures; None (the default) when the method cannot be exported."""
         return None
 
+    def step_times(self, fitted: Any, data: Samples) -> tuple[str, np.ndarray] | None:
+        """Optional hook: the fitted model run step by step on the method's own step code over every segment of
+        ``data`` (the test part, simulation mode), for the real-time figures: ``(what was timed, e.g. "c-step";
+        the seconds of each step)``. None (the default): the method times no step of its own, and the job's
+        prediction time over the steps stands in. MethodError when the step cannot be timed on this machine (no
+        C compiler): its message says why. The built-in exportable methods time their ``c_model`` step with
+        ``methods.export.harness.c_step_times``."""
+        return None
+
     def onnx_model(self, fitted: Any) -> Any:
         """Optional hook: the fitted model's initial state and step as a torch network (a
         ``methods.export.onnx.OnnxModel``) for ``export --onnx``; None (the default) when it has none."""

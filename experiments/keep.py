@@ -6,11 +6,11 @@
   (``results/model_store.py``) with the test part and the job's predictions of it; ``Run.write_job``
   writes it as ``models/<job-key>.npz``. A model that cannot be stored leaves the job as it is, with a
   warning saying why.
-* in simulation mode, the time of one model step over the whole test part: a method offering a C step
-  (``Method.c_model``) is compiled with gcc and each step timed in C (median, p99, worst, and the
-  real-time factor dt / worst, ``source = "c-step"``); otherwise, or without a compiler, the job's own
-  prediction time over the test part's steps (``source = "python-batched"``, median = p99 = worst =
-  the mean, since a batched free run times no single step). The figures go into the job's metadata
+* in simulation mode, the time of one model step over the whole test part: a method timing its own step
+  (``Method.step_times``; the built-in methods with a C step compile it with gcc and time each step in C)
+  gives median, p99, worst, and the real-time factor dt / worst (``source = "c-step"``); otherwise, or
+  without a compiler, the job's own prediction time over the test part's steps (``source =
+  "python-batched"``, median = p99 = worst = the mean, since a batched free run times no single step). The figures go into the job's metadata
   (``realtime``) and its metric rows (``rt_median_us``, ``rt_p99_us``, ``rt_worst_us``, ``rt_factor``;
   ``table --metrics rt``). Timing is measured and reported, never asserted.
 """
@@ -21,38 +21,27 @@ from typing import Any
 
 import numpy as np
 
-from enginebench.errors import EngineBenchError
+from enginebench.errors import EngineBenchError, MethodError
 from enginebench.results.model_store import MODEL_META, encode_model
+from enginebench.results.realtime import RT_METRICS, step_figures
+
 
 def realtime_figures(method: Any, fitted: Any, test: Any, predict_s: float | None) -> dict[str, Any]:
-    """One step's time over the whole test part ``test`` (``Samples``) as ``step_figures`` gives it."""
-    from enginebench.methods.export.harness import CStep, compiler, step_figures
-
+    """One step's time over the whole test part ``test`` (``Samples``) as ``step_figures`` gives it: the method's
+    own step timed by its ``step_times`` hook, else the job's prediction time over the steps."""
+    why = "the method times no step of its own"
+    try:
+        timed = method.step_times(fitted, test)
+    except MethodError as exc:  # e.g. no C compiler on this machine
+        timed, why = None, str(exc)
+    if timed is not None:
+        source, times = timed
+        return step_figures(np.asarray(times, dtype=np.float64), test.dt, source)
     steps = sum(len(s.t) for s in test.segments)
-    why = "the method offers no C step"
-    model = method.c_model(fitted)
-    if model is not None and compiler() is not None:
-        targets = model.targets or tuple(test.target_names)
-        model = model if model.targets else _with_targets(model, targets)
-        times = []
-        cols = [list(test.input_names).index(c) for c in model.inputs]
-        with CStep(model) as step:
-            for s in test.segments:
-                window = s.y_init if s.y_init is not None and len(s.y_init) else np.reshape(s.y0, (1, -1))
-                times.append(step.run(np.asarray(s.U, dtype=np.float64)[:, cols], window, len(window), True)[1])
-        return step_figures(np.concatenate(times) if times else np.empty(0), test.dt, "c-step")
-    if model is not None:
-        why = "no C compiler (gcc) to time its C step"
     mean = (predict_s or float("nan")) / max(steps, 1)
     out = step_figures(np.full(1, mean), test.dt, "python-batched")
-    out.update(steps=steps, note=f"{why}: the test part's prediction time over its {steps} steps")
+    out.update(steps=steps, note=f"the test part's prediction time over its {steps} steps ({why})")
     return out
-
-
-def _with_targets(model: Any, targets: tuple[str, ...]) -> Any:
-    from dataclasses import replace
-
-    return replace(model, targets=targets)
 
 
 def after_test(spec: Any, job: Any, method: Any, fitted: Any, problem: Any, params: dict[str, Any],
@@ -69,11 +58,9 @@ def after_test(spec: Any, job: Any, method: Any, fitted: Any, problem: Any, para
         try:
             figures = realtime_figures(method, fitted, test, timings.get("predict_test_s"))
             meta["realtime"] = figures
-            for name in test.target_names:
-                rows += [{"target": name, "metric": "rt_median_us", "value": figures["median_us"]},
-                         {"target": name, "metric": "rt_p99_us", "value": figures["p99_us"]},
-                         {"target": name, "metric": "rt_worst_us", "value": figures["worst_us"]},
-                         {"target": name, "metric": "rt_factor", "value": figures["rt_factor"]}]
+            for name in test.target_names:  # rt_median_us <- median_us ... rt_factor <- rt_factor
+                rows += [{"target": name, "metric": m, "value": figures[m if m == "rt_factor" else m[3:]]}
+                         for m in RT_METRICS]
         except (EngineBenchError, OSError) as exc:
             meta.setdefault("warnings", []).append(f"{job.method}: real-time figures not measured ({exc})")
     if getattr(spec, "store_models", False):

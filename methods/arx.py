@@ -326,3 +326,9 @@ class ARX(GivenOrders, Method):
         from enginebench.methods.export.models import arx_c
 
         return arx_c(fitted)
+
+    def step_times(self, fitted, data):
+        """Its C step timed over ``data`` for the real-time figures (``methods/export/harness.py``)."""
+        from enginebench.methods.export.harness import c_step_times
+
+        return c_step_times(self.c_model(fitted), data)

@@ -37,6 +37,12 @@ class NaiveMean(Method):
 
         return naive_mean_c(fitted)
 
+    def step_times(self, fitted, data):
+        """Its C step timed over ``data`` for the real-time figures (``methods/export/harness.py``)."""
+        from enginebench.methods.export.harness import c_step_times
+
+        return c_step_times(self.c_model(fitted), data)
+
 
 class NaiveLast(Method):
     """Last-value persistence: y(t) is predicted by the measured y(t - dt) (window mode)."""

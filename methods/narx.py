@@ -318,3 +318,9 @@ class NARX(GivenOrders, Method):
         from enginebench.methods.export.models import narx_c
 
         return narx_c(fitted)
+
+    def step_times(self, fitted, data):
+        """Its C step timed over ``data`` for the real-time figures (``methods/export/harness.py``)."""
+        from enginebench.methods.export.harness import c_step_times
+
+        return c_step_times(self.c_model(fitted), data)

@@ -211,3 +211,9 @@ class NFIR(InputHistory, KRLS):
         from enginebench.methods.export.models import nfir_c
 
         return nfir_c(fitted)
+
+    def step_times(self, fitted, data):
+        """Its C step timed over ``data`` for the real-time figures (``methods/export/harness.py``)."""
+        from enginebench.methods.export.harness import c_step_times
+
+        return c_step_times(self.c_model(fitted), data)

@@ -19,8 +19,9 @@ import numpy as np
 from enginebench.errors import MethodError, StoreError
 from enginebench.methods.export import check_exportable
 from enginebench.methods.export.fmu import build_fmu, simulate_fmu
-from enginebench.methods.export.harness import CStep, step_figures
+from enginebench.methods.export.harness import CStep
 from enginebench.results.model_store import MODELS_DIR, StoredModel, load_model, read_model_file
+from enginebench.results.realtime import step_figures
 
 TOLERANCE = 1e-9
 """Largest accepted difference between the FMU's outputs and the run's predictions, relative to the largest
@@ -90,6 +91,7 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
         raise MethodError(f"method {stored.method.name!r}: an FMU steps in time; this model was tested in mode "
                           f"{data['mode']!r} (export models of simulation-mode runs)")
     model = check_exportable(stored.method, stored.fitted, tuple(data["target_names"]))
+    tolerance = max(tolerance, model.tolerance or 0.0)  # a model whose solver stops earlier states its own
     if not stored.check_data:
         raise StoreError(f"{model_path}: the stored model holds no test predictions to check an export against")
     in_cols = [data["input_names"].index(c) for c in model.inputs]

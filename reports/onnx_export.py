@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from enginebench.errors import MethodError, StoreError
-from enginebench.methods.export.harness import step_figures
 from enginebench.reports.fmu_export import ExportResult, _windows
 from enginebench.results.model_store import StoredModel, load_model
+from enginebench.results.realtime import step_figures
 
 TOLERANCE = {"float32": 1e-5, "float64": 1e-9}
 """Largest accepted difference between the graphs' outputs and the run's predictions, relative to the largest

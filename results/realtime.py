@@ -8,10 +8,23 @@ factor of that worst step. Figures are measured on the machine that ran the jobs
 
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 import pandas as pd
 
 RT_METRICS = ("rt_median_us", "rt_p99_us", "rt_worst_us", "rt_factor")
 """The real-time metric rows of a simulation job; ``table --metrics rt`` stands for all four."""
+
+
+def step_figures(times: np.ndarray, dt: float, source: str) -> dict[str, Any]:
+    """Median, p99 and worst step (microseconds) and the real-time factor dt / worst of ``times`` (seconds)."""
+    times = np.asarray(times, dtype=np.float64)
+    worst = float(times.max()) if times.size else float("nan")
+    return {"source": source, "steps": int(times.size), "dt_s": float(dt),
+            "median_us": float(np.median(times) * 1e6) if times.size else float("nan"),
+            "p99_us": float(np.percentile(times, 99) * 1e6) if times.size else float("nan"),
+            "worst_us": worst * 1e6, "rt_factor": float(dt / worst) if worst > 0 else float("inf")}
 
 
 def expand_rt(metrics: list[str] | None) -> list[str] | None:

@@ -3,7 +3,8 @@
 ``run_c(model, U, y_meas, init)`` returns the outputs the C step computes for every sample (what the FMU
 outputs) and, with ``timing=True``, the seconds each step took (``clock_gettime(CLOCK_MONOTONIC)``
 around set-inputs, outputs and commit; the clock's own cost, some 20-40 ns, is included). The figures
-(``step_figures``) are the median, 99th percentile and worst step and the real-time factor dt / worst.
+(``results/realtime.step_figures``) are the median, 99th percentile and worst step and the real-time factor
+dt / worst. ``c_step_times`` is the ``Method.step_times`` hook of the methods with a C step.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -120,11 +122,19 @@ def run_c(model: CModel, U: np.ndarray, y_meas: np.ndarray, init: int, timing: b
         return step.run(U, y_meas, init, timing)
 
 
-def step_figures(times: np.ndarray, dt: float, source: str) -> dict[str, Any]:
-    """Median, p99 and worst step (microseconds) and the real-time factor dt / worst of ``times`` (seconds)."""
-    times = np.asarray(times, dtype=np.float64)
-    worst = float(times.max()) if times.size else float("nan")
-    return {"source": source, "steps": int(times.size), "dt_s": float(dt),
-            "median_us": float(np.median(times) * 1e6) if times.size else float("nan"),
-            "p99_us": float(np.percentile(times, 99) * 1e6) if times.size else float("nan"),
-            "worst_us": worst * 1e6, "rt_factor": float(dt / worst) if worst > 0 else float("inf")}
+def c_step_times(model: CModel | None, data: Any) -> tuple[str, np.ndarray] | None:
+    """``Method.step_times`` of a method with a C step: ``("c-step", seconds of each step)`` of ``model`` (its
+    ``c_model``) compiled once and run over every segment of ``data`` (``Samples``: the inputs, and the measured
+    outputs of each segment's init window, its first sample without one); None without a model. MethodError (one
+    line) without a C compiler or when the generated code does not compile."""
+    if model is None:
+        return None
+    if not model.targets:
+        model = replace(model, targets=tuple(data.target_names))
+    cols = [list(data.input_names).index(c) for c in model.inputs]
+    times = []
+    with CStep(model) as step:
+        for s in data.segments:
+            window = s.y_init if s.y_init is not None and len(s.y_init) else np.reshape(s.y0, (1, -1))
+            times.append(step.run(np.asarray(s.U, dtype=np.float64)[:, cols], window, len(window), True)[1])
+    return "c-step", (np.concatenate(times) if times else np.empty(0))

@@ -342,3 +342,28 @@ def test_an_fmu_refuses_a_step_that_is_not_a_multiple_of_dt(kept_run, tmp_path):
     assert "[ERROR] fmi2DoStep: the step size must be a whole multiple of the model's sample period" in lines
     assert "0.015 refused: fmi2DoStep failed with status 3 (error)." in lines
     assert lines[-1] == "0.02 ok"  # two whole periods, inputs held
+
+
+def test_realtime_figures_come_from_the_methods_step_times_hook_alone():
+    from types import SimpleNamespace
+
+    from enginebench.experiments.keep import realtime_figures
+
+    test = SimpleNamespace(dt=0.01, segments=[SimpleNamespace(t=np.arange(3)), SimpleNamespace(t=np.arange(1))])
+
+    class Own:
+        def step_times(self, fitted, data):
+            return "own-step", np.array([1e-6, 2e-6, 3e-6, 4e-6])
+
+    class Cannot:
+        def step_times(self, fitted, data):
+            raise MethodError("method 'x': no C compiler found (gcc or $CC); install gcc to export or time a model")
+
+    own = realtime_figures(Own(), None, test, 1.0)
+    assert own["source"] == "own-step" and own["steps"] == 4 and own["worst_us"] == pytest.approx(4.0)
+    assert own["rt_factor"] == pytest.approx(0.01 / 4e-6)
+    for method, why in ((Holds(), "the method times no step of its own"), (Cannot(), "no C compiler found")):
+        fallback = realtime_figures(method, None, test, 0.002)
+        assert fallback["source"] == "python-batched" and fallback["median_us"] == pytest.approx(500.0)
+        assert fallback["note"].startswith("the test part's prediction time over its 4 steps (") and why in \
+            fallback["note"]
