@@ -54,9 +54,10 @@ class Verdict:
 
     @property
     def where(self) -> str:
-        """The block in words: the target, its window where it has one, its part where it is not "test"."""
+        """The block in words: the target, its window in window mode (Delta 0 s too: a run's windows are told
+        apart), its part where it is not "test"."""
         parts = [self.target]
-        if self.window:
+        if self.mode == "window":
             parts.append(f"Delta {self.window:g} s")
         if self.split != "test":
             parts.append(self.split)

@@ -88,6 +88,13 @@ def test_one_verdict_per_target_and_only_on_the_test_part():
     assert all(v.split == "test" for v in found)
 
 
+def test_a_window_run_names_every_window_delta_0_too():
+    raw = pd.concat([_raw(VALUES).assign(mode="window", window=w) for w in (0.0, 30.0)], ignore_index=True)
+    found = sorted(_verdicts(raw), key=lambda v: v.window)
+    assert [v.text().split(":")[0] for v in found] == ["t_cat, Delta 0 s", "t_cat, Delta 30 s"]
+    assert _verdicts(_raw(VALUES))[0].text().startswith("t_cat: ")  # static mode: no window to name
+
+
 # -- on a real run, at the top of the reports ------------------------------------------
 
 @pytest.fixture(scope="module")
