@@ -69,6 +69,8 @@ def export_line(cls) -> str:
     from enginebench.methods.export import exportable
     from enginebench.methods.export.onnx import onnx_exportable
 
+    if getattr(cls, "export_note", None):
+        return f"export: {cls.export_note}"
     if exportable(cls) and "simulation" in cls.modes:
         return "export: FMU (FMI 2.0 co-simulation from its C step: enginebench export RUN --method NAME --fmu OUT.fmu)"
     if onnx_exportable(cls) and "simulation" in cls.modes:

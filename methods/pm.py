@@ -117,14 +117,34 @@ class PhysicalModelMethod(Method):
     uses_features = False  # simulated from the raw inputs U
     modes = frozenset({"static", "window", "simulation"})
     summary = "the dataset's physical model"
+    export_note = ("FMU where the dataset's physical model has a C step (marine-diesel's: enginebench export RUN "
+                   "--method pm --fmu OUT.fmu, from a simulation-mode run with --keep-models); none for the others")
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> dict[str, Any]:
         pm = physical_model(train)
-        return {"model": pm.name, "params": pm.calibrate(calibration_signals(train))}
+        # targets and dt: what a C step of the model (export --fmu, real-time figures) is built for
+        return {"model": pm.name, "params": pm.calibrate(calibration_signals(train)),
+                "targets": list(train.target_names), "dt": float(train.dt)}
 
     def predict(self, fitted: dict[str, Any], data: Samples) -> list[np.ndarray]:
         out = simulate_rows(physical_model(data), fitted["params"], data)
         return SegmentPredictions(out) if data.mode == "simulation" else out
 
     def describe(self, fitted: dict[str, Any]) -> dict[str, Any]:
-        return dict(fitted)
+        return {k: v for k, v in fitted.items() if k not in ("targets", "dt")}
+
+    def c_model(self, fitted: dict[str, Any]) -> Any:
+        """The physical model's fixed step in C where it offers one (``c_model(params, dt, targets)``)."""
+        from enginebench.datasets.physical import get_physical_model
+
+        if "targets" not in fitted or "dt" not in fitted:
+            return None
+        pm = get_physical_model(fitted["model"])
+        make = getattr(pm, "c_model", None)
+        return None if make is None else make(fitted["params"], fitted["dt"], tuple(fitted["targets"]))
+
+    def step_times(self, fitted: dict[str, Any], data: Samples) -> Any:
+        """The real-time figures' step: the C step where the physical model has one (None otherwise)."""
+        from enginebench.methods.export.harness import c_step_times
+
+        return c_step_times(self.c_model(fitted), data)

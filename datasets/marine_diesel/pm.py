@@ -372,6 +372,12 @@ class MarineDieselPM:
         """The FAT-calibrated parameters; the operating segments are not used (egt-hybrid sec. 5.1)."""
         return self.params
 
+    def c_model(self, params: Mapping[str, Any], dt: float, targets: Sequence[str]) -> Any:
+        """The model's fixed step at ``dt`` in C (``c_step.py``): ``pm``'s FMU and real-time figures."""
+        from enginebench.datasets.marine_diesel.c_step import c_model
+
+        return c_model(params, dt, targets)
+
     def simulate(self, params: Mapping[str, Any], segment: Mapping[str, np.ndarray],
                  dt: float) -> dict[str, np.ndarray]:
         """Predicted bank-averaged exhaust temperatures (degC) over one segment."""

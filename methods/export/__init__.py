@@ -48,6 +48,14 @@ class CModel:
     lower: np.ndarray | None = None
     """Envelope (physical units); None: outputs are never held."""
     upper: np.ndarray | None = None
+    n_state: int = 0
+    """Internal states (a physical model's lags): the body reads ``xs`` (this step's, all zero at step 0: the
+    body sets its own start from the first inputs when ``n == 0``) and writes ``xn`` (the next step's)."""
+    prelude: str = ""
+    """C emitted before the body (its own definitions and helper functions)."""
+    tolerance: float | None = None
+    """Largest relative difference to the run's predictions an export accepts, where the model's own numerics
+    allow no less than the float64 default (an iterative solve: its stopping rule); None: the default, 1e-9."""
 
 
 def c_double(x: float) -> str:
@@ -83,13 +91,15 @@ typedef struct {
     double ys[NY];
     double y[NY];
     double held[NY];
+    double xs[NX + 1];
+    double xn[NX + 1];
     long n;
     long init;
     int diverged;
     int fresh;
 } eb_model;
 
-static void eb_body(const double *uh, const double *yh, double *ys) {
+static void eb_body(const double *uh, const double *yh, double *ys, const double *xs, double *xn, long n) {
 %(body)s
 }
 
@@ -114,7 +124,7 @@ const double *eb_outputs(eb_model *m, const double *ymeas) {
         for (int j = 0; j < NY; j++) { m->y[j] = ymeas[j]; m->ys[j] = (ymeas[j] - Y_MEAN[j]) / Y_STD[j]; }
         if (m->n == 0) for (int j = 0; j < NY; j++) for (int l = 0; l < LY; l++) m->yh[j * LY + l] = m->ys[j];
     } else {
-        eb_body(m->uh, m->yh, m->ys);
+        eb_body(m->uh, m->yh, m->ys, m->xs, m->xn, m->n);
         int bad = 0;
         for (int j = 0; j < NY; j++) {
             m->y[j] = m->ys[j] * Y_STD[j] + Y_MEAN[j];
@@ -133,6 +143,7 @@ const double *eb_outputs(eb_model *m, const double *ymeas) {
 void eb_commit(eb_model *m, const double *ymeas) {
     eb_outputs(m, ymeas);
     if (!m->diverged) for (int j = 0; j < NY; j++) m->held[j] = m->y[j];
+    for (int i = 0; i < NX; i++) m->xs[i] = m->xn[i];
     for (int j = 0; j < NY; j++) {
         for (int l = LY - 1; l > 0; l--) m->yh[j * LY + l] = m->yh[j * LY + l - 1];
         if (LY > 0) m->yh[j * LY] = m->ys[j];
@@ -152,13 +163,14 @@ def c_source(model: CModel) -> str:
             f"{model.method} model ({', '.join(model.inputs)} -> {', '.join(model.targets)}) */",
             "#define _POSIX_C_SOURCE 200112L", "#include <math.h>", "#include <string.h>",
             f"#define NU {nu}", f"#define NY {ny}", f"#define LU {max(int(model.u_lags), 1)}",
-            f"#define LY {int(model.y_lags)}", f"#define FEEDBACK {int(model.y_lags > 0)}", f"#define CLIP {int(clip)}",
+            f"#define LY {int(model.y_lags)}", f"#define NX {int(model.n_state)}",
+            f"#define FEEDBACK {int(model.y_lags > 0)}", f"#define CLIP {int(clip)}",
             ""]
     consts = [c_array("U_MEAN", _vector(model.u_mean, nu, 0.0)), c_array("U_STD", _vector(model.u_std, nu, 1.0)),
               c_array("Y_MEAN", _vector(model.y_mean, ny, 0.0)), c_array("Y_STD", _vector(model.y_std, ny, 1.0)),
               c_array("ENV_LO", _vector(model.lower, ny, -np.inf)), c_array("ENV_HI", _vector(model.upper, ny, np.inf))]
     consts += [c_array(name, values) for name, values in model.constants.items()]
-    return "\n".join(head) + "".join(consts) + CORE % {"body": model.body}
+    return "\n".join(head) + "".join(consts) + model.prelude + CORE % {"body": model.body}
 
 
 def check_exportable(method: object, fitted: object, targets: Sequence[str]) -> CModel:
