@@ -305,7 +305,11 @@ def run_slurm(
     context_file = root / f"context-{token}.pkl"
     _write_atomic(context_file, pickle.dumps(ctx, protocol=pickle.HIGHEST_PROTOCOL))
     sources = tuple((str(Path(p).resolve()), Path(p).read_text(encoding="utf-8")) for p in plugins)
-    executor = submitit.AutoExecutor(folder=root / "logs", cluster=settings["cluster"])
+    try:
+        executor = submitit.AutoExecutor(folder=root / "logs", cluster=settings["cluster"])
+    except RuntimeError as exc:  # submitit finds no srun: this machine is not in a SLURM cluster
+        raise ExecutorError(f"the slurm executor found no SLURM here ({_first_line(exc)}); run on a cluster's login "
+                            "node, or set [slurm] cluster = \"local\" to run the tasks on this machine") from None
     submitted: dict[str, tuple[Any, Job]] = {}
     try:
         by_method: dict[str, list[Job]] = {}

@@ -116,3 +116,19 @@ def test_slurm_options_on_the_command_line(tmp_path, data):
     result = CliRunner().invoke(cli, ["run", "x", "--executor", "pbs"])
     assert result.exit_code == 2 and all(name in result.output for name in EXECUTORS)
     assert EXECUTORS == ("local", "dask", "slurm")
+
+
+def test_no_slurm_on_this_machine_is_one_error_line(tmp_path, data, monkeypatch):
+    import shutil
+
+    if shutil.which("srun"):
+        pytest.skip("srun is on this machine")
+    monkeypatch.setenv("ENGINEBENCH_STORE", str(tmp_path / "runs"))
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'name = "toy-slurm"\ndataset = "{data}"\ntargets = ["y"]\nrepetitions = 1\n'
+                   'train_size = 150\n[methods.naive-mean]\n')
+    out = CliRunner().invoke(cli, ["run", str(exp), "--executor", "slurm", "-q"])
+    assert out.exit_code == 2, out.output
+    assert out.output.strip().splitlines()[-1].startswith(
+        "error: the slurm executor found no SLURM here (Could not detect \"srun\", are you indeed on a slurm cluster?); "
+        "run on a cluster's login node, or set [slurm] cluster = \"local\" to run the tasks on this machine")
