@@ -84,7 +84,8 @@ def test_pm_fmu_reproduces_the_runs_predictions(tmp_path):
 
     path = write_dataset(marine_records(), tmp_path / "marine.parquet")
     spec = from_dict({"name": "pm-fmu", "dataset": str(path), "targets": [T_INLET], "mode": "simulation",
-                      "repetitions": 1, "train_size": 0, "split": {"kind": "records", "train": ["est"], "test": ["val"]},
+                      "repetitions": 1, "train_size": 0,
+                      "split": {"kind": "records", "train": ["est"], "test": ["val"]},
                       "selection": {"kind": "none"}, "store": {"models": True}, "methods": {"pm": {}}}, origin="test")
     run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
     result = export_fmu(model_file(run, "pm"), tmp_path / "pm.fmu", timing=True, run_id=run.id)
