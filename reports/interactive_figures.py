@@ -195,7 +195,8 @@ def time_series_figure(
             xs, ys = gapped(x[starts], means[:, j], segment[starts])
             fig.add_trace(go.Scatter(x=_f32(xs), y=_f32(ys), mode="lines", stackgroup="weights", name=f"expert {j + 1}",
                                      legendgroup="weights", line={"width": 0.5, "color": PALETTE[(j + 3) % len(PALETTE)]},
-                                     legendgrouptitle_text=f"weights: {weights_label}" if j == 0 else None),
+                                     legendgrouptitle_text=f"weights: {weights_label}" if j == 0 else None,
+                                     legendrank=2000 + j),  # after every method (1000 + k) in the legend
                           row=2, col=1)
         fig.update_yaxes(title_text=f"{weights_label} weights [-]" if weights_label else "weights [-]", range=[0, 1],
                          row=2, col=1)

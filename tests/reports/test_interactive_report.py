@@ -241,6 +241,9 @@ def test_simulation_page_marks_divergence_draws_the_weights_and_lists_failures(s
     assert {g["stackgroup"] for g in gate} == {"weights"} and {g["yaxis"] for g in gate} == {"y2"}
     total = np.nansum([_values(g["y"]) for g in gate], axis=0)
     np.testing.assert_allclose(total[np.isfinite(total) & (total > 0)], 1.0)
+    # the legend lists measured, the methods, then the weights' group (it sat between two methods)
+    ranked = [t["name"] for t in sorted(series["data"], key=lambda t: t["legendrank"])]
+    assert ranked[0] == "measured" and ranked[-2:] == ["expert 1", "expert 2"]
     assert "test-gated mixing weights as bands underneath" in text
     assert "diverged (dashed): test-gated (1 segment)" in text
     assert any("test-boom: not drawn" in n for n in page.notes)
