@@ -66,7 +66,7 @@ def methods_show(name: str, plugins) -> None:
 
 def export_line(cls) -> str:
     """Whether the method's fitted models can be exported (``enginebench export``) and stored (docs/models.md)."""
-    from enginebench.methods.export import exportable
+    from enginebench.c_model import exportable
     from enginebench.methods.export.onnx import onnx_exportable
 
     if getattr(cls, "export_note", None):

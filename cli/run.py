@@ -52,7 +52,7 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     (install with `pip install "enginebench[dask]"`); the results are the same.
     """
     from enginebench.experiments.runner import run_experiment
-    from enginebench.experiments.slurm import parse_slurm_options
+    from enginebench.experiments.slurm_settings import parse_slurm_options
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore
     from enginebench.cli.table import paired_lines

@@ -6,7 +6,7 @@ At import, :func:`import_meta` opens the FMU once, checks every name against its
 description and stores the configuration, the FMU's absolute path and its sha256 in
 the dataset's metadata (``meta["physical_model"] = "fmu"``, ``meta["fmu"]``).
 
-:class:`FMUPhysicalModel` implements the :class:`~enginebench.datasets.physical.PhysicalModel`
+:class:`FMUPhysicalModel` implements the :class:`~enginebench.physical.PhysicalModel`
 protocol with fmpy: every segment is simulated from its first time stamp (as t = 0)
 to its last, the mapped columns fed as input time series (linear between samples),
 outputs sampled every dt and interpolated to the segment's time stamps. Parameters are

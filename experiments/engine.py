@@ -38,7 +38,7 @@ def physical_model_for(ds) -> object | None:
     name = ds.meta.get("physical_model")
     if not name:
         return None
-    from enginebench.datasets.physical import get_physical_model
+    from enginebench.physical import get_physical_model
 
     return get_physical_model(name, ds.meta)
 

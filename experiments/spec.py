@@ -50,7 +50,7 @@ from enginebench.declare import (Declaration, Invalid, anything, choice, did_you
                                  table, text, whole)
 from enginebench.errors import SpecError
 from enginebench.experiments.search import SEARCHES
-from enginebench.experiments.slurm import check_slurm
+from enginebench.experiments.slurm_settings import check_slurm
 from enginebench.results.metrics import CRITERIA
 from enginebench.samples import MODES
 
@@ -145,7 +145,7 @@ TOP = Declaration(
     table("store", {}, "what a run keeps besides its metrics: [store] models = true stores each job's fitted model "
           "(docs/models.md); not part of the config hash", check=_store,
           message="'store' must be a table such as [store] models = true"),
-    table("slurm", {}, "resources of --executor slurm ([slurm] and [slurm.methods.NAME], experiments/slurm.py); "
+    table("slurm", {}, "resources of --executor slurm ([slurm] and [slurm.methods.NAME], experiments/slurm_settings.py); "
           "not part of the config hash", message="'slurm' must be a table such as [slurm] partition = \"cpu\""),
 )
 """The experiment spec's top-level keys (``run`` names the methods when [methods.NAME] tables are given)."""

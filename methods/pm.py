@@ -1,6 +1,6 @@
 """``pm``: the dataset's own physical model, calibrated by the model's own rule.
 
-The physical model is declared by the dataset (datasets/physical.py). It is calibrated
+The physical model is declared by the dataset (enginebench/physical.py). It is calibrated
 on the training rows only (stateless models) or keeps parameters set elsewhere (e.g. a
 factory-acceptance-test calibration), and simulated over whole segments so that
 stateful models (lags, thermal inertia) see their history.
@@ -135,7 +135,7 @@ class PhysicalModelMethod(Method):
 
     def c_model(self, fitted: dict[str, Any]) -> Any:
         """The physical model's fixed step in C where it offers one (``c_model(params, dt, targets)``)."""
-        from enginebench.datasets.physical import get_physical_model
+        from enginebench.physical import get_physical_model
 
         if "targets" not in fitted or "dt" not in fitted:
             return None

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from enginebench.errors import MethodError, StoreError
-from enginebench.methods.export import check_exportable
+from enginebench.c_model import check_exportable
 from enginebench.methods.export.fmu import build_fmu, simulate_fmu
 from enginebench.methods.export.harness import CStep
 from enginebench.results.model_store import MODELS_DIR, StoredModel, load_model, read_model_file

@@ -186,7 +186,7 @@ def c_model(params: Mapping[str, Any], dt: float, targets: Sequence[str], method
     """The ``CModel`` of the physical model with ``params`` at sample period ``dt`` (s), predicting ``targets``
     (turbine inlet and/or outlet exhaust temperature, degC) from engine speed and fuel rack."""
     from enginebench.errors import MethodError
-    from enginebench.methods.export import CModel, c_double
+    from enginebench.c_model import CModel, c_double
 
     known = (T_INLET, T_OUTLET)
     unknown = [t for t in targets if t not in known]

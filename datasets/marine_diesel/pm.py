@@ -302,7 +302,7 @@ META_KEY = "pm_calibration"
 
 
 class MarineDieselPM:
-    """The egt-hybrid paper's mean-value physical model as a ``PhysicalModel`` (datasets/physical.py).
+    """The egt-hybrid paper's mean-value physical model as a ``PhysicalModel`` (enginebench/physical.py).
 
     Parameters, in order of precedence: ``params`` if given; else the FAT calibration
     named by ``calibration``: "simulator" (default) fits the PM to the shop-test points

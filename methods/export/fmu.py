@@ -28,7 +28,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from enginebench.errors import MethodError
-from enginebench.methods.export import CModel, c_double, c_source
+from enginebench.c_model import CModel, c_double, c_source
 from enginebench.methods.export.harness import compile_shared
 
 FMI2 = r"""

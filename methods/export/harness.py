@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from enginebench.errors import MethodError
-from enginebench.methods.export import CModel, c_source
+from enginebench.c_model import CModel, c_source
 
 CFLAGS = ("-O2", "-std=c99", "-fPIC", "-ffp-contract=off")
 """No fast-math and no fused multiply-add: the C step rounds like the toolkit's numpy arithmetic."""

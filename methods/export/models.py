@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from enginebench.methods.export import CModel, c_double
+from enginebench.c_model import CModel, c_double
 
 
 def arx_c(fitted: Any) -> CModel:

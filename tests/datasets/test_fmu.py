@@ -220,7 +220,7 @@ def test_import_stores_the_fmu_absolute_with_its_sha256(thermal_fmu, tmp_path):
 
 
 def test_a_changed_fmu_after_import_is_an_error(thermal_fmu, library, tmp_path):
-    from enginebench.datasets.physical import get_physical_model
+    from enginebench.physical import get_physical_model
 
     shutil.copy(thermal_fmu, tmp_path / "model.fmu")
     ds = import_table(write_spec(tmp_path, "model.fmu", PM_TABLE))

@@ -15,7 +15,7 @@ from enginebench.datasets.marine_diesel.pm import (
     solve_charge_pressure, steady_outputs,
 )
 from enginebench.datasets.marine_diesel.sensors import first_order_lag
-from enginebench.datasets.physical import PhysicalModel
+from enginebench.physical import PhysicalModel
 from enginebench.errors import DataError
 
 

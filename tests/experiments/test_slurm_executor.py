@@ -15,7 +15,8 @@ from enginebench.experiments.engine import plan
 from enginebench.experiments.executors import EXECUTORS
 from enginebench.experiments.jobs import run_job
 from enginebench.experiments.runner import context_of_run, run_experiment
-from enginebench.experiments.slurm import _minutes, parse_slurm_options, resources, submitit_parameters
+from enginebench.experiments.slurm import _minutes, submitit_parameters
+from enginebench.experiments.slurm_settings import parse_slurm_options, resources
 from enginebench.experiments.spec import from_dict
 from enginebench.results.store import RunStore
 from helpers import interrupt_after, make_toy

@@ -297,7 +297,7 @@ def test_export_cli_prints_the_difference_and_refuses_a_method_without_a_c_step(
 
 @needs_gcc
 def test_a_method_without_a_c_step_cannot_be_exported_in_one_line():
-    from enginebench.methods.export import check_exportable
+    from enginebench.c_model import check_exportable
 
     with pytest.raises(MethodError, match=r"^method 'test-holds' cannot be exported: it offers no C step"):
         check_exportable(Holds(plain=True), {"c": 1.0, "extra": None}, ("y",))
