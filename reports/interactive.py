@@ -97,6 +97,7 @@ def _series(predictions: Sequence[Predictions], simulated: Sequence[Any]) -> lis
         lengths = [len(t) for t in sim.time]
         segment = np.repeat(np.arange(len(lengths)), lengths)
         out.append({"target": sim.target, "window": sim.window, "split": sim.split, "part": sim.part,
+                    "mode": "simulation",
                     "repetition": sim.repetition, "time": np.concatenate(sim.time), "segment": segment,
                     "truth": np.concatenate(sim.truth), "pred": {m: np.concatenate(v) for m, v in sim.sims.items()},
                     "diverged": {m: np.repeat(f, lengths) for m, f in sim.diverged.items()},
@@ -105,14 +106,41 @@ def _series(predictions: Sequence[Predictions], simulated: Sequence[Any]) -> lis
     return out
 
 
+def end_to_end(seconds: np.ndarray, segment: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Times laid end to end where segments overlap in time (two engines of one flight, records restarting at 0),
+    so that no trajectory is drawn over another: each segment starts one median sample period after the previous
+    one ended, in order of appearance. Returns the times and whether they were moved."""
+    seconds = np.asarray(seconds, dtype=float)
+    segment = np.asarray(segment)
+    if seconds.size == 0:
+        return seconds, False
+    order = list(dict.fromkeys(segment.tolist()))
+    spans = [(seconds[segment == g].min(), seconds[segment == g].max()) for g in order]
+    if all(b_start > a_end for (_, a_end), (b_start, _) in zip(spans, spans[1:])):
+        return seconds, False
+    steps = np.diff(seconds)
+    gap = float(np.median(steps[steps > 0])) if (steps > 0).any() else 1.0
+    out = np.empty_like(seconds)
+    cursor = 0.0
+    for g, (start, end) in zip(order, spans):
+        rows = segment == g
+        out[rows] = seconds[rows] - start + cursor
+        cursor += end - start + gap
+    return out, True
+
+
 def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[str, str], max_points: int) -> None:
     from enginebench.reports.interactive_figures import scatter_figure, time_series_figure
     from enginebench.results.units import axis_label
 
     trends, scatters = [], []
     for s in series:
-        x, tunit = _time_axis(np.asarray(s["time"], dtype=float))
-        where = f"{s['target']}, window {s['window']:g} s, split {s['split']}"
+        seconds, moved = end_to_end(s["time"], s["segment"])
+        x, tunit = _time_axis(seconds)
+        x_label = (f"time, {s['part']} segments end to end ({tunit})" if moved
+                   else f"time since the first shown {s['part']} row ({tunit})")
+        where = (f"{s['target']}, split {s['split']}" if s.get("mode") == "simulation"
+                 else f"{s['target']}, window {s['window']:g} s, split {s['split']}")
         about = f"{s['part']} part, repetition {s['repetition']} ({s['what']})"
         label = axis_label(s["target"], units.get(s["target"]))
         n_div = {m: int(np.count_nonzero(np.diff(np.r_[0, d.astype(int)]) == 1))
@@ -124,7 +152,7 @@ def _prediction_sections(page: _Page, series: list[dict[str, Any]], units: dict[
         trends.append(page.figure(time_series_figure(
             x, s["segment"], s["truth"], s["pred"], diverged=s["diverged"], weights=s["weights"],
             weights_label=s["weights_label"], title=f"{where}: {s['part']} part", y_label=label,
-            x_label=f"time since the first shown {s['part']} row ({tunit})", max_points=max_points), caption))
+            x_label=x_label, max_points=max_points), caption))
         scatters.append(page.figure(scatter_figure(s["truth"], s["pred"], title=f"{where}: measured vs predicted",
                                                    label=label, max_points=max_points),
                                     f"{where}: measured vs predicted on the {about}"))

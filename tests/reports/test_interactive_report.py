@@ -484,3 +484,17 @@ def test_validation_scores_and_operating_map_axes_take_the_given_units():
     fig = ia.figure_json(ia.operating_map_figure(m, unit="kN m", axis_units={"speed": "rpm", "load": "%"}))
     assert fig["layout"]["xaxis"]["title"]["text"] == "speed [rpm]"
     assert fig["layout"]["yaxis"]["title"]["text"] == "load [%]"
+
+
+def test_segments_overlapping_in_time_are_laid_end_to_end_and_others_keep_their_times():
+    """Two engines of one flight cover the same seconds: the time series lays them end to end (one median sample
+    period apart) so that neither is drawn over the other; segments already in sequence keep their times."""
+    from enginebench.reports.interactive import end_to_end
+
+    t = np.r_[np.arange(10.0, 15.0), np.arange(10.0, 15.0)]
+    seg = np.repeat([0, 1], 5)
+    out, moved = end_to_end(t, seg)
+    assert moved and out.tolist() == [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
+    seq = np.r_[np.arange(0.0, 5.0), np.arange(100.0, 103.0)]
+    out, moved = end_to_end(seq, np.repeat([0, 1], [5, 3]))
+    assert not moved and np.array_equal(out, seq)
