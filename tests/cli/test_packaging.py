@@ -66,10 +66,13 @@ def test_every_module_is_loaded_once():
                 importlib.import_module(info.name)
             except ImportError:  # an optional extra that is not installed
                 continue
+    # the package's own folders: the checkout's in an editable install, site-packages/enginebench in a wheel
+    roots = [Path(p).resolve() for p in enginebench.__path__]
+    roots += [Path(importlib.import_module(f"enginebench.{folder}").__path__[0]).resolve() for folder in FOLDERS]
     by_file: dict[str, list[str]] = {}
     for name, module in list(sys.modules.items()):
         path = getattr(module, "__file__", None)
-        if path and Path(path).resolve().is_relative_to(Path(enginebench.__file__).resolve().parents[1]):
+        if path and any(Path(path).resolve().is_relative_to(root) for root in roots):
             by_file.setdefault(str(Path(path).resolve()), []).append(name)
     twice = {path: names for path, names in by_file.items() if len(names) > 1 and "tests" not in Path(path).parts}
     assert not twice, twice

@@ -14,6 +14,11 @@ from enginebench.results.store import RunStore
 from enginebench.results.term import grid, note_text
 from helpers import stored_run
 
+NEUTRAL = str(__import__("pathlib").Path(__file__).resolve().parent)
+"""A child Python starts here, not in the checkout root, whose ``enginebench/`` source folder would shadow the
+installed package (``python -c`` puts its working directory first on sys.path)."""
+
+
 LONG = "residual-krls-pm-with-a-long-name"
 
 
@@ -152,7 +157,7 @@ def test_printing_stored_results_imports_no_heavy_library(store, command):
         "    pass\n"
         f"print('HEAVY', [m for m in {HEAVY!r} if m in sys.modules])\n"
     )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=NEUTRAL)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "HEAVY []", done.stdout + done.stderr
     if command == ["methods", "list"]:  # every class loaded (a class that failed to import would say BROKEN)

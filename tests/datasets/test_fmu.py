@@ -20,6 +20,10 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
+NEUTRAL = str(__import__("pathlib").Path(__file__).resolve().parent)
+"""A child Python starts here, not in the checkout root, whose ``enginebench/`` source folder would shadow the
+installed package (``python -c`` puts its working directory first on sys.path)."""
+
 fmpy = pytest.importorskip("fmpy", reason="fmpy is not installed (pip install enginebench[fmu])")
 
 from enginebench.datasets.fmu import FMUPhysicalModel, open_fmu  # noqa: E402
@@ -435,6 +439,7 @@ import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from enginebench.datasets.fmu import FMUPhysicalModel
+
 cfg = json.loads(sys.argv[1])
 pm = FMUPhysicalModel(cfg)
 pm.simulate(pm.parameters, {"time": np.arange(5.0), "power": np.ones(5)}, 1.0)
@@ -459,7 +464,7 @@ def test_an_fmu_message_after_a_model_was_freed_does_not_crash_the_process(therm
     # a model's logger freed with it left fmpy's one logger slot dangling: the next FMU message was a segfault
     # (an FMU of another module, on fmpy's default callbacks, logging an error); in a child process, as it may crash
     cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in config(thermal_fmu).items()}
-    out = subprocess.run([sys.executable, "-c", FREED_THEN_DEFAULT, json.dumps(cfg)], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", FREED_THEN_DEFAULT, json.dumps(cfg)], capture_output=True, text=True, cwd=NEUTRAL,
                          timeout=120)
     assert out.returncode == 0, f"exit {out.returncode}: {out.stderr[-2000:]}"
     assert "refused: fmi2DoStep failed with status 3 (error)" in out.stdout

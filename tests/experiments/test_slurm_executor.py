@@ -37,7 +37,8 @@ def data(tmp_path):
     return write_dataset(make_toy(), tmp_path / "toy.parquet")
 
 
-def test_the_submitit_local_executor_gives_the_local_runs_table(tmp_path, data):
+def test_the_submitit_local_executor_gives_the_local_runs_table(tmp_path, data, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # tasks start their Python here: in the checkout, enginebench/ would shadow the install
     slurm = {"cluster": "local", "max_parallel": 2, "methods": {"ridge": {"cpus": 1, "time": 5, "memory": "1G"}}}
     spec = spec_of(data, slurm=slurm)
     store = RunStore(tmp_path / "store")

@@ -27,6 +27,10 @@ from enginebench.registry import register
 from enginebench.results.model_store import _Encoder, _decode, encode_model, load_model
 from enginebench.results.store import RunStore
 
+NEUTRAL = str(__import__("pathlib").Path(__file__).resolve().parent)
+"""A child Python starts here, not in the checkout root, whose ``enginebench/`` source folder would shadow the
+installed package (``python -c`` puts its working directory first on sys.path)."""
+
 HAVE_GCC = shutil.which("gcc") is not None
 HAVE_FMPY = importlib.util.find_spec("fmpy") is not None
 needs_gcc = pytest.mark.skipif(not HAVE_GCC, reason="no C compiler (gcc) on this machine")
@@ -222,7 +226,7 @@ from enginebench.api import load_model
 m = load_model({str(path)!r})
 print(repr(m.check()))
 """
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=NEUTRAL)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "0.0"
 
@@ -308,6 +312,7 @@ import sys
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
+
 md = read_model_description(sys.argv[1])
 print("stepSize", md.defaultExperiment.stepSize, flush=True)
 fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1]), modelIdentifier=md.coSimulation.modelIdentifier,
@@ -333,7 +338,7 @@ def test_an_fmu_refuses_a_step_that_is_not_a_multiple_of_dt(kept_run, tmp_path):
 
     result = export_fmu(find_model(kept_run.path, kept_run.id, "arx", None, None), tmp_path / "arx.fmu")
     # fmpy runs the FMU in a child process: native code that crashed would end that process, never the suite
-    out = subprocess.run([sys.executable, "-c", STEP_SIZES, str(result.path)], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", STEP_SIZES, str(result.path)], capture_output=True, text=True, cwd=NEUTRAL,
                          timeout=120)
     assert out.returncode == 0, f"exit {out.returncode}: {out.stdout}{out.stderr[-2000:]}"
     lines = out.stdout.splitlines()
