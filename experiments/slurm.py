@@ -22,9 +22,7 @@ executor (tests, a try before the cluster), ``"debug"`` in this process.
 from __future__ import annotations
 
 import math
-import os
 import pickle
-import tempfile
 import time
 import uuid
 from dataclasses import dataclass
@@ -32,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
 
 from enginebench.experiments.slurm_settings import SLURM, resources
+from enginebench.results.atomic import atomic_write_bytes
 
 if TYPE_CHECKING:
     from enginebench.experiments.jobs import Context, Job
@@ -117,27 +116,13 @@ class _Task:
         from enginebench.experiments.jobs import run_job
 
         result = run_job(ctx, job)
-        _write_atomic(out, pickle.dumps((job, result), protocol=pickle.HIGHEST_PROTOCOL))
+        atomic_write_bytes(out, pickle.dumps((job, result), protocol=pickle.HIGHEST_PROTOCOL))
         return str(out)
 
     def checkpoint(self, *args: Any, **kwargs: Any) -> Any:
         import submitit
 
         return submitit.helpers.DelayedSubmission(self, *args, **kwargs)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _read_result(path: Path) -> tuple["Job", Any] | None:
@@ -199,7 +184,7 @@ def run_slurm(
 
     token = uuid.uuid4().hex[:8]
     context_file = root / f"context-{token}.pkl"
-    _write_atomic(context_file, pickle.dumps(ctx, protocol=pickle.HIGHEST_PROTOCOL))
+    atomic_write_bytes(context_file, pickle.dumps(ctx, protocol=pickle.HIGHEST_PROTOCOL))
     sources = tuple((str(Path(p).resolve()), Path(p).read_text(encoding="utf-8")) for p in plugins)
     try:
         executor = submitit.AutoExecutor(folder=root / "logs", cluster=settings["cluster"])

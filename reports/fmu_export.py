@@ -77,6 +77,28 @@ def find_model(run_path: Path, run_id: str, method: str, target: str | None, rep
     return sorted(mine, key=lambda pj: (pj[1].get("repetition", 0), str(pj[1].get("split")), str(pj[0])))[0][0]
 
 
+@dataclass
+class Agreement:
+    """How far an exported model's outputs lie from the run's predictions, segment by segment: the largest absolute
+    difference, the largest relative to each output's largest magnitude, and the rows compared."""
+
+    max_abs: float = 0.0
+    max_rel: float = 0.0
+    steps: int = 0
+
+    def add(self, Y: np.ndarray, seg: dict[str, Any], out_cols: list[int]) -> None:
+        """Compare the exported outputs ``Y`` (every row of the segment) on the rows the run scored."""
+        rows = np.asarray(seg["rows"], dtype=np.int64)
+        pred = np.asarray(seg["prediction"], dtype=np.float64)[:, out_cols]
+        diff = np.abs(Y[rows] - pred)
+        scale = np.maximum(np.abs(pred).max(axis=0, initial=0.0), np.finfo(float).tiny)
+        worst = float(diff.max(initial=0.0))
+        rel = float((diff.max(axis=0, initial=0.0) / scale).max(initial=0.0))
+        self.max_abs = max(self.max_abs, worst if np.isfinite(worst) else float("inf"))  # NaN out: never agreement
+        self.max_rel = max(self.max_rel, rel if np.isfinite(rel) else float("inf"))
+        self.steps += len(rows)
+
+
 def _windows(seg: dict[str, Any]) -> np.ndarray:
     y_init = seg.get("y_init")
     return y_init if y_init is not None and len(y_init) else np.reshape(seg["y0"], (1, -1))
@@ -109,7 +131,7 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
              f"{data['dt']} s")
     path = build_fmu(model, out, dt=float(data["dt"]), init=init, stop=stop, about=about, resources=resources,
                      units=units)
-    max_abs, max_rel, steps = 0.0, 0.0, 0
+    agreement = Agreement()
     fmu_times, c_times = [], []
     step = CStep(model) if timing else None
     try:
@@ -117,27 +139,20 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
             U = np.asarray(seg["U"], dtype=np.float64)[:, in_cols]
             window = _windows(seg)[:, out_cols]
             Y, t = simulate_fmu(path, U, window, len(window), float(data["dt"]), timing=timing)
-            rows = np.asarray(seg["rows"], dtype=np.int64)
-            pred = np.asarray(seg["prediction"], dtype=np.float64)[:, out_cols]
-            diff = np.abs(Y[rows] - pred)
-            scale = np.maximum(np.abs(pred).max(axis=0, initial=0.0), np.finfo(float).tiny)
-            max_abs = max(max_abs, float(diff.max(initial=0.0)))
-            max_rel = max(max_rel, float((diff.max(axis=0, initial=0.0) / scale).max(initial=0.0)))
-            steps += len(rows)
+            agreement.add(Y, seg, out_cols)
             if timing:
                 fmu_times.append(t)
                 c_times.append(step.run(U, window, len(window), timing=True)[1])  # type: ignore[union-attr]
     finally:
         if step is not None:
             step.close()
-    if not np.isfinite(max_rel):
-        max_rel = float("inf")
     figures: dict[str, Any] = {}
     if timing:
         figures = {"c_step": step_figures(np.concatenate(c_times), float(data["dt"]), "c-step"),
                    "fmu_via_fmpy": step_figures(np.concatenate(fmu_times), float(data["dt"]), "fmpy")}
     return ExportResult(path=path, method=stored.meta["method"], job=str(stored.meta.get("job", {}).get("key")),
-                        steps=steps, max_abs=max_abs, max_rel=max_rel, tolerance=tolerance, timing=figures)
+                        steps=agreement.steps, max_abs=agreement.max_abs, max_rel=agreement.max_rel,
+                        tolerance=tolerance, timing=figures)
 
 
 def result_json(result: ExportResult) -> str:

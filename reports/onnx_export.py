@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from enginebench.errors import MethodError, StoreError
-from enginebench.reports.fmu_export import ExportResult, _windows
+from enginebench.reports.fmu_export import Agreement, ExportResult, _windows
 from enginebench.results.model_store import StoredModel, load_model
 from enginebench.results.realtime import step_figures
 
@@ -60,28 +60,20 @@ def export_onnx(model_path: Path, out: Path, *, timing: bool = False, run_id: st
              "units": {k: v for k, v in data.get("units", {}).items() if k in (*model.inputs, *model.targets)}}
     step_path, enc_path = write_onnx(model, Path(out), facts)
     runner = OnnxRunner(step_path, enc_path)
-    max_abs, max_rel, steps, times = 0.0, 0.0, 0, []
+    agreement, times = Agreement(), []
     for seg in stored.check_data:
         U = np.asarray(seg["U"], dtype=np.float64)[:, in_cols]
         window = _windows(seg)[:, out_cols]
         Y, t = runner.simulate(U, window, timing=timing)
-        rows = np.asarray(seg["rows"], dtype=np.int64)
-        pred = np.asarray(seg["prediction"], dtype=np.float64)[:, out_cols]
-        diff = np.abs(Y[rows] - pred)
-        scale = np.maximum(np.abs(pred).max(axis=0, initial=0.0), np.finfo(float).tiny)
-        max_abs = max(max_abs, float(diff.max(initial=0.0)))
-        max_rel = max(max_rel, float((diff.max(axis=0, initial=0.0) / scale).max(initial=0.0)))
-        steps += len(rows)
+        agreement.add(Y, seg, out_cols)
         times.append(t)
-    if not np.isfinite(max_rel):
-        max_rel = float("inf")
     figures: dict[str, Any] = {}
     if timing:
         figures = {"onnxruntime_step": step_figures(np.concatenate(times), float(data["dt"]), "onnxruntime")}
     return OnnxExportResult(path=step_path, encoder=enc_path, method=name,
-                            job=str(stored.meta.get("job", {}).get("key")), steps=steps, max_abs=max_abs,
-                            max_rel=max_rel, tolerance=TOLERANCE.get(model.dtype, TOLERANCE["float32"]),
-                            timing=figures)
+                            job=str(stored.meta.get("job", {}).get("key")), steps=agreement.steps,
+                            max_abs=agreement.max_abs, max_rel=agreement.max_rel,
+                            tolerance=TOLERANCE.get(model.dtype, TOLERANCE["float32"]), timing=figures)
 
 
 def result_json(result: OnnxExportResult) -> str:
