@@ -129,7 +129,9 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
     about = (f"{stored.meta['method']} model of {', '.join(model.targets)} from {', '.join(model.inputs) or 'no inputs'}"
              f" (enginebench run {run_id or '?'}, job {stored.meta.get('job', {}).get('key', '?')}); fixed step "
              f"{data['dt']} s")
-    path = build_fmu(model, out, dt=float(data["dt"]), init=init, stop=stop, about=about, resources=resources,
+    # built beside ``out`` and moved over it only once it agrees with the run: a failed check never costs the user
+    # an FMU already at ``out``
+    path = build_fmu(model, out.with_name(f".{out.name}.unchecked"), dt=float(data["dt"]), init=init, stop=stop, about=about, resources=resources,
                      units=units)
     agreement = Agreement()
     fmu_times, c_times = [], []
@@ -150,6 +152,8 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
     if timing:
         figures = {"c_step": step_figures(np.concatenate(c_times), float(data["dt"]), "c-step"),
                    "fmu_via_fmpy": step_figures(np.concatenate(fmu_times), float(data["dt"]), "fmpy")}
+    if agreement.max_rel <= tolerance:
+        path = path.replace(out)
     return ExportResult(path=path, method=stored.meta["method"], job=str(stored.meta.get("job", {}).get("key")),
                         steps=agreement.steps, max_abs=agreement.max_abs, max_rel=agreement.max_rel,
                         tolerance=tolerance, timing=figures)

@@ -372,3 +372,25 @@ def test_realtime_figures_come_from_the_methods_step_times_hook_alone():
         assert fallback["source"] == "python-batched" and fallback["median_us"] == pytest.approx(500.0)
         assert fallback["note"].startswith("the test part's prediction time over its 4 steps (") and why in \
             fallback["note"]
+
+
+def test_a_failed_fmu_check_leaves_an_fmu_already_at_the_output_path(kept_run, tmp_path, monkeypatch):
+    """The FMU is built beside the output and moved over it only once it agrees with the run: when the simulated
+    FMU disagrees (here made to, by 1.0 on every output), the file already at the output path is left as it was and
+    the unchecked build is reported."""
+    pytest.importorskip("fmpy", reason="fmpy is not installed (pip install enginebench[fmu])")
+    from enginebench.reports import fmu_export
+    from enginebench.reports.fmu_export import export_fmu, find_model
+
+    real = fmu_export.simulate_fmu
+    monkeypatch.setattr(fmu_export, "simulate_fmu", lambda *a, **k: (lambda Y, t: (Y + 1.0, t))(*real(*a, **k)))
+
+    if shutil.which("gcc") is None and shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    run = kept_run
+    model = find_model(run.path, run.id, "arx", None, None)
+    out = tmp_path / "arx.fmu"
+    out.write_bytes(b"an earlier export")
+    result = export_fmu(model, out, run_id=run.id)
+    assert not result.ok and result.path != out and result.path.exists()
+    assert out.read_bytes() == b"an earlier export"
