@@ -97,3 +97,49 @@ def test_methods_show_states_each_export():
     assert export_line(get("neural-ss")).startswith("export: ONNX")
     assert export_line(get("arx")).startswith("export: FMU")
     assert export_line(get("sindy")).startswith("export: none")
+
+
+@needs_onnx
+def test_a_failed_onnx_check_leaves_files_already_at_the_output_paths(torch_run, tmp_path, monkeypatch):
+    """The graphs are built in a hidden folder beside the output and moved over it only once they agree with the
+    run: when the check fails (here: a tolerance no difference can meet), the step and encoder files already at
+    the output paths are byte for byte as they were, no staged graph is left, and the command fails in one line."""
+    from enginebench.cli.main import cli
+    from enginebench.reports import onnx_export
+
+    out = tmp_path / "ss.onnx"
+    enc = tmp_path / "ss.encoder.onnx"
+    out.write_bytes(b"an earlier step graph")
+    enc.write_bytes(b"an earlier encoder graph")
+    monkeypatch.setattr(onnx_export, "TOLERANCE", {"float32": -1.0, "float64": -1.0})
+    result = onnx_export.export_onnx(model_file(torch_run, "neural-ss"), out, run_id=torch_run.id)
+    assert not result.ok and not result.written and result.steps == 400 - 10 and result.max_rel <= 1e-5
+    assert (result.path, result.encoder) == (out, enc)
+    assert out.read_bytes() == b"an earlier step graph" and enc.read_bytes() == b"an earlier encoder graph"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ss.encoder.onnx", "ss.onnx"]
+    # and through the command, which used to remove both files
+    res = CliRunner().invoke(cli, ["export", str(torch_run.path), "--method", "neural-ss", "--onnx", str(out)])
+    assert res.exit_code == 2, res.output
+    assert f"did not write {out} (the step) and {enc} (the initial state)" in res.output
+    assert "above -1; they were not written" in res.output
+    assert out.read_bytes() == b"an earlier step graph" and enc.read_bytes() == b"an earlier encoder graph"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ss.encoder.onnx", "ss.onnx"]
+
+
+@needs_onnx
+def test_a_passed_onnx_check_replaces_files_already_at_the_output_paths(torch_run, tmp_path):
+    """Once the graphs agree they replace the files at the output paths (both of them) and the staging folder
+    is gone; the graphs' metadata name their final files."""
+    from enginebench.methods.export.onnx import OnnxRunner
+    from enginebench.reports.onnx_export import export_onnx
+
+    out = tmp_path / "gru.onnx"
+    enc = tmp_path / "gru.encoder.onnx"
+    out.write_bytes(b"old")
+    enc.write_bytes(b"old")
+    result = export_onnx(model_file(torch_run, "gru"), out, run_id=torch_run.id)
+    assert result.ok and result.written and (result.path, result.encoder) == (out, enc)
+    assert out.read_bytes() != b"old" and enc.read_bytes() != b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gru.encoder.onnx", "gru.onnx"]
+    runner = OnnxRunner(out)
+    assert runner.facts["step_graph"] == "gru.onnx" and runner.facts["encoder_graph"] == "gru.encoder.onnx"
