@@ -20,6 +20,7 @@ import difflib
 import json
 import re
 import warnings
+from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -304,6 +305,186 @@ def _index_ticks(sorted_codes: np.ndarray, order: np.ndarray) -> np.ndarray:
     return ticks
 
 
+@dataclass(frozen=True)
+class _Sorted:
+    """The rows grouped by segment in order of first appearance, file order kept inside a segment."""
+
+    order: np.ndarray
+    """The file row of each sorted row."""
+    codes: np.ndarray
+    """Its segment, as an index into ``ids``."""
+    ids: np.ndarray
+    """The segment ids, first appearance first."""
+    ticks: np.ndarray
+    """Its time stamp in ticks of ``scale`` seconds."""
+    scale: float
+    lines: np.ndarray
+    """Its line (or row) number."""
+    time: pd.Series | None
+    """The file's time column, to show a stamp as written (None without one: a stamp is then a sample index)."""
+
+    @property
+    def same(self) -> np.ndarray:
+        """For each sorted row but the last: the next one is of the same segment."""
+        return self.codes[1:] == self.codes[:-1]
+
+    def stamp(self, i: int) -> str:
+        return show_cell(self.time.iloc[self.order[i]]) if self.time is not None else str(self.ticks[i])
+
+
+@dataclass(frozen=True)
+class _Pieces:
+    """The segments cut at gaps: piece k > 0 of segment s is named ``"s#k"``."""
+
+    of_row: np.ndarray
+    """Each sorted row's piece."""
+    starts: np.ndarray
+    """The sorted row where each piece starts."""
+    names: np.ndarray
+    lengths: np.ndarray
+
+
+def _check_settings(dt: float, gap_tolerance: float, min_segment_rows: int, *, source: str) -> None:
+    """The spec's sampling settings: dt > 0, gap_tolerance >= dt, min_segment_rows >= 1 (SpecError otherwise)."""
+    if not dt > 0:
+        raise SpecError(f"{source}: dt must be a positive number of seconds, got {dt}")
+    if not gap_tolerance >= dt:
+        raise SpecError(f"{source}: gap_tolerance = {gap_tolerance} s is shorter than dt = {dt} s; make it at least dt")
+    if int(min_segment_rows) < 1:
+        raise SpecError(f"{source}: min_segment_rows must be at least 1, got {min_segment_rows}")
+
+
+def _check_header(frame: pd.DataFrame, schema: Schema, *, source: str, time_col: str | None) -> None:
+    """No declared column named like the segment or time column, and every needed column in the frame."""
+    for c in schema.names():
+        if c in (SEGMENT, TIME, time_col):
+            raise SpecError(f"{source}: column {c!r} clashes with the {'time' if c != SEGMENT else 'segment'} column")
+    required = {SEGMENT: "segment column", **({time_col: "time column"} if time_col is not None else {})}
+    required.update({c: "declared column" for c in schema.names()})
+    check_columns(list(frame.columns), required, source=source)
+
+
+def _read_columns(
+    frame: pd.DataFrame, schema: Schema, *, source: str, lines: np.ndarray, word: str, shown: Mapping[str, str]
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Each declared column in spec order: finite numbers (numeric roles) or text keys as codes and labels."""
+    values: dict[str, np.ndarray] = {}
+    labels: dict[str, np.ndarray] = {}
+    for c in schema.columns:
+        raw = frame[c.name]
+        name = shown.get(c.name, c.name)
+        if c.role in NUMERIC_ROLES:
+            x = parse_numbers(raw, source=source, column=name, lines=lines, word=word)
+            _require_finite(x, raw, source=source, column=name, lines=lines, word=word)
+            values[c.name] = x
+        else:
+            values[c.name], labels[c.name] = _labels(raw, source=source, column=name, lines=lines, word=word)
+    return values, labels
+
+
+def _group_rows(
+    seg_raw: pd.Series, time: tuple[np.ndarray, float] | None, dt: float, *, lines: np.ndarray,
+    time_column: pd.Series | None
+) -> _Sorted:
+    """The rows sorted by segment; without time stamps a row's time is its sample index in its segment."""
+    codes, ids = _factorize_text(seg_raw)
+    order = np.argsort(codes, kind="stable")
+    ticks, scale = time if time is not None else (_index_ticks(codes[order], order), float(dt))
+    return _Sorted(order=order, codes=codes[order], ids=ids, ticks=ticks[order], scale=scale, lines=lines[order],
+                   time=time_column)
+
+
+def _check_steps(
+    rows: _Sorted, dt: float, gap_tolerance: float, dt_tolerance: float, *, source: str, column: str | None, word: str
+) -> np.ndarray:
+    """The step in seconds from each sorted row to the next, checked within a segment: time goes forward, and a
+    step up to ``gap_tolerance`` is a multiple k >= 1 of ``dt`` within ``dt_tolerance * k * dt``."""
+    same, ls = rows.same, rows.lines
+    d = np.diff(rows.ticks)
+    bad = same & (d <= 0)
+    if bad.any():
+        i = _first(bad, ls[1:])
+        seg = rows.ids[rows.codes[i]]
+        if d[i] == 0:
+            raise DataError(
+                f"{source}, column {column!r}, {word}s {ls[i]} and {ls[i + 1]}: duplicate time stamp "
+                f"{rows.stamp(i + 1)} in segment {seg!r}; remove the repeated row"
+            )
+        raise DataError(
+            f"{source}, column {column!r}, {word} {ls[i + 1]}: time goes backwards from {rows.stamp(i)} "
+            f"({word} {ls[i]}) to {rows.stamp(i + 1)} in segment {seg!r}; sort the rows by time"
+        )
+    step = d.astype(float) * rows.scale
+    within = same & (step <= gap_tolerance)
+    k = np.rint(step / dt)
+    off = within & ((k < 1) | (np.abs(step - k * dt) > dt_tolerance * np.maximum(k, 1) * dt))
+    if off.any():
+        i = _first(off, ls[1:])
+        raise DataError(
+            f"{source}, column {column!r}, {word} {ls[i + 1]}: step of {_num(step[i])} s from {rows.stamp(i)} "
+            f"({word} {ls[i]}) to {rows.stamp(i + 1)} is not a multiple of dt = {_num(dt)} s; "
+            "resample the data to dt or fix dt in the spec"
+        )
+    return step
+
+
+def _split_at_gaps(rows: _Sorted, gap_after: np.ndarray, *, source: str) -> _Pieces:
+    """The segments cut where ``gap_after`` (a gap after sorted row i, within a segment)."""
+    n = len(rows.order)
+    gap = np.r_[False, gap_after]
+    seg_first = np.r_[True, ~rows.same]
+    cum = np.cumsum(gap)
+    start_of_seg = np.maximum.accumulate(np.where(seg_first, np.arange(n), 0))
+    piece_no = cum - cum[start_of_seg]
+    piece = np.cumsum(seg_first | gap) - 1
+    starts = np.flatnonzero(seg_first | gap)
+    number = piece_no[starts]
+    names = (
+        pd.Series(rows.ids[rows.codes[starts]], dtype=object) + np.where(number > 0, "#" + number.astype(str), "")
+    ).to_numpy(dtype=object)
+    clash = set(names[number > 0]) & set(rows.ids)
+    if clash:
+        raise DataError(
+            f"{source}: splitting a segment at a gap gives the id {sorted(clash)[0]!r}, which is already a "
+            "segment id; rename that segment"
+        )
+    return _Pieces(of_row=piece, starts=starts, names=names, lengths=np.bincount(piece))
+
+
+def _drop_short(
+    pieces: _Pieces, lines: np.ndarray, min_segment_rows: int, drop: bool, *, source: str, word: str
+) -> tuple[np.ndarray, list[tuple[str, int]]]:
+    """Which sorted rows stay, and the ``(id, rows)`` of the pieces shorter than ``min_segment_rows``: a DataError
+    naming the first such piece unless ``drop``, then a warning (and a DataError when nothing is left)."""
+    short = pieces.lengths < int(min_segment_rows)
+    if not short.any():
+        return np.ones(len(pieces.of_row), dtype=bool), []
+    names, lengths, starts = pieces.names, pieces.lengths, pieces.starts
+    if not drop:
+        p = int(np.flatnonzero(short)[np.argmin(lines[starts[short]])])
+        a, b = lines[starts[p]], lines[starts[p] + lengths[p] - 1]
+        where = f"{word} {a}" if lengths[p] == 1 else f"{word}s {a}-{b}"
+        raise DataError(
+            f"{source}: segment {names[p]!r} ({where}) has {_rows(lengths[p])}, fewer than "
+            f"min_segment_rows = {int(min_segment_rows)}; set drop_short_segments = true in the spec to drop "
+            "such segments, or lower min_segment_rows"
+        )
+    dropped = [(str(names[p]), int(lengths[p])) for p in np.flatnonzero(short)]
+    keep = ~short[pieces.of_row]
+    if not keep.any():
+        raise DataError(
+            f"{source}: no segment has at least min_segment_rows = {int(min_segment_rows)} rows; "
+            "check dt and gap_tolerance, or lower min_segment_rows"
+        )
+    plural = "" if len(dropped) == 1 else "s"
+    warnings.warn(
+        f"{source}: dropped {len(dropped)} segment{plural} shorter than min_segment_rows = "
+        f"{int(min_segment_rows)} ({_rows(sum(r for _, r in dropped))})",
+        stacklevel=3,  # validate_frame's caller
+    )
+    return keep, dropped
+
+
 def validate_frame(
     frame: pd.DataFrame,
     schema: Schema,
@@ -335,131 +516,35 @@ def validate_frame(
     ``result.attrs["dropped_segments"]`` and the time zone of datetime stamps in
     ``result.attrs["time_zone"]``.
     """
-    if not dt > 0:
-        raise SpecError(f"{source}: dt must be a positive number of seconds, got {dt}")
-    if not gap_tolerance >= dt:
-        raise SpecError(f"{source}: gap_tolerance = {gap_tolerance} s is shorter than dt = {dt} s; make it at least dt")
-    if int(min_segment_rows) < 1:
-        raise SpecError(f"{source}: min_segment_rows must be at least 1, got {min_segment_rows}")
+    _check_settings(dt, gap_tolerance, min_segment_rows, source=source)
     word = row_word
     n = len(frame)
     ln = np.arange(n) + (2 if word == "line" else 1) if lines is None else np.asarray(lines)
     if n == 0:
         raise DataError(f"{source}: no data rows; the file must hold at least {min_segment_rows} rows")
     shown = dict(shown or {})
-    for c in schema.names():
-        if c in (SEGMENT, TIME, time_col):
-            raise SpecError(f"{source}: column {c!r} clashes with the {'time' if c != SEGMENT else 'segment'} column")
-    required = {SEGMENT: "segment column", **({time_col: "time column"} if time_col is not None else {})}
-    required.update({c: "declared column" for c in schema.names()})
-    check_columns(list(frame.columns), required, source=source)
+    _check_header(frame, schema, source=source, time_col=time_col)
 
     seg_raw = frame[SEGMENT]
     if seg_raw.isna().any():
         i = _first(seg_raw.isna().to_numpy(), ln)
         raise DataError(f"{source}, column {SEGMENT!r}, {word} {ln[i]}: missing segment id; fill it or remove the row")
-    zone = None
+    zone, time = None, None
     if time_col is not None:
         ticks, scale, zone = parse_time(frame[time_col], time_unit, source=source, column=time_col, lines=ln, word=word)
-    values: dict[str, np.ndarray] = {}
-    labels: dict[str, np.ndarray] = {}
-    for c in schema.columns:
-        raw = frame[c.name]
-        name = shown.get(c.name, c.name)
-        if c.role in NUMERIC_ROLES:
-            x = parse_numbers(raw, source=source, column=name, lines=ln, word=word)
-            _require_finite(x, raw, source=source, column=name, lines=ln, word=word)
-            values[c.name] = x
-        else:
-            values[c.name], labels[c.name] = _labels(raw, source=source, column=name, lines=ln, word=word)
+        time = (ticks, scale)
+    values, labels = _read_columns(frame, schema, source=source, lines=ln, word=word, shown=shown)
     if check_constant:
         check_not_constant(pd.DataFrame(values), schema, source=source, shown=shown)
 
-    # Group rows by segment (first appearance), keep file order inside a segment.
-    codes, uniques = _factorize_text(seg_raw)
-    order = np.argsort(codes, kind="stable")
-    if time_col is None:
-        ticks, scale = _index_ticks(codes[order], order), float(dt)
-    cs, ts, ls = codes[order], ticks[order], ln[order]
-    same = cs[1:] == cs[:-1]
-    d = np.diff(ts)
+    rows = _group_rows(seg_raw, time, dt, lines=ln, time_column=frame[time_col] if time_col is not None else None)
+    step = _check_steps(rows, dt, gap_tolerance, dt_tolerance, source=source, column=time_col, word=word)
+    pieces = _split_at_gaps(rows, rows.same & (step > gap_tolerance), source=source)
+    keep, dropped = _drop_short(pieces, rows.lines, min_segment_rows, drop_short_segments, source=source, word=word)
 
-    def stamp(i: int) -> str:
-        return show_cell(frame[time_col].iloc[order[i]]) if time_col is not None else str(ts[i])
-
-    bad = same & (d <= 0)
-    if bad.any():
-        i = _first(bad, ls[1:])
-        seg = uniques[cs[i]]
-        if d[i] == 0:
-            raise DataError(
-                f"{source}, column {time_col!r}, {word}s {ls[i]} and {ls[i + 1]}: duplicate time stamp "
-                f"{stamp(i + 1)} in segment {seg!r}; remove the repeated row"
-            )
-        raise DataError(
-            f"{source}, column {time_col!r}, {word} {ls[i + 1]}: time goes backwards from {stamp(i)} "
-            f"({word} {ls[i]}) to {stamp(i + 1)} in segment {seg!r}; sort the rows by time"
-        )
-    step = d.astype(float) * scale
-    within = same & (step <= gap_tolerance)
-    k = np.rint(step / dt)
-    off = within & ((k < 1) | (np.abs(step - k * dt) > dt_tolerance * np.maximum(k, 1) * dt))
-    if off.any():
-        i = _first(off, ls[1:])
-        raise DataError(
-            f"{source}, column {time_col!r}, {word} {ls[i + 1]}: step of {_num(step[i])} s from {stamp(i)} "
-            f"({word} {ls[i]}) to {stamp(i + 1)} is not a multiple of dt = {_num(dt)} s; "
-            "resample the data to dt or fix dt in the spec"
-        )
-
-    # Split at gaps: piece k > 0 of segment s is named "s#k".
-    gap = np.r_[False, same & (step > gap_tolerance)]
-    seg_first = np.r_[True, ~same]
-    cum = np.cumsum(gap)
-    start_of_seg = np.maximum.accumulate(np.where(seg_first, np.arange(n), 0))
-    piece_no = cum - cum[start_of_seg]
-    piece = np.cumsum(seg_first | gap) - 1
-    starts = np.flatnonzero(seg_first | gap)
-    number = piece_no[starts]
-    names = (
-        pd.Series(uniques[cs[starts]], dtype=object) + np.where(number > 0, "#" + number.astype(str), "")
-    ).to_numpy(dtype=object)
-    clash = set(names[number > 0]) & set(uniques)
-    if clash:
-        raise DataError(
-            f"{source}: splitting a segment at a gap gives the id {sorted(clash)[0]!r}, which is already a "
-            "segment id; rename that segment"
-        )
-    lengths = np.bincount(piece)
-    short = lengths < int(min_segment_rows)
-    dropped: list[tuple[str, int]] = []
-    keep = np.ones(n, dtype=bool)
-    if short.any():
-        if not drop_short_segments:
-            p = int(np.flatnonzero(short)[np.argmin(ls[starts[short]])])
-            a, b = ls[starts[p]], ls[starts[p] + lengths[p] - 1]
-            where = f"{word} {a}" if lengths[p] == 1 else f"{word}s {a}-{b}"
-            raise DataError(
-                f"{source}: segment {names[p]!r} ({where}) has {_rows(lengths[p])}, fewer than "
-                f"min_segment_rows = {int(min_segment_rows)}; set drop_short_segments = true in the spec to drop "
-                "such segments, or lower min_segment_rows"
-            )
-        dropped = [(str(names[p]), int(lengths[p])) for p in np.flatnonzero(short)]
-        keep = ~short[piece]
-        if not keep.any():
-            raise DataError(
-                f"{source}: no segment has at least min_segment_rows = {int(min_segment_rows)} rows; "
-                "check dt and gap_tolerance, or lower min_segment_rows"
-            )
-        plural = "" if len(dropped) == 1 else "s"
-        warnings.warn(
-            f"{source}: dropped {len(dropped)} segment{plural} shorter than min_segment_rows = "
-            f"{int(min_segment_rows)} ({_rows(sum(r for _, r in dropped))})",
-            stacklevel=2,
-        )
-
-    sel = order[keep]
-    out = pd.DataFrame({SEGMENT: _text_array(piece[keep], names), TIME: (ts[keep] * scale).astype(float)})
+    sel = rows.order[keep]
+    out = pd.DataFrame({SEGMENT: _text_array(pieces.of_row[keep], pieces.names),
+                        TIME: (rows.ticks[keep] * rows.scale).astype(float)})
     for c in schema.columns:
         v = values[c.name][sel]
         out[c.name] = _text_array(v, labels[c.name]) if c.name in labels else v
