@@ -21,7 +21,8 @@ import numpy as np
 from enginebench.datasets.dataset import TIME, Dataset
 from enginebench.datasets.schema import Schema
 from enginebench.errors import DataError
-from enginebench.samples import MODES, Samples, SegmentSamples, iter_batches, lagged_feature_names
+from enginebench.samples import (MODES, Samples, SegmentSamples, init_samples_problem, iter_batches,
+                                 lagged_feature_names)
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,11 +159,10 @@ class SamplePool:
             raise DataError(f"window {window} s is not a multiple of the sample period {raw.dt} s")
         if mode != "window" and lags:
             raise DataError(f"a window of {window} s needs mode 'window' (mode is {mode!r})")
-        if isinstance(init_samples, bool) or int(init_samples) != init_samples or init_samples < 0:
-            raise DataError(f"init_samples must be a whole number >= 0, got {init_samples!r}")
+        problem = init_samples_problem(init_samples, mode)  # the spec's check (an experiment has passed it)
+        if problem:
+            raise DataError(problem)
         init_samples = int(init_samples)
-        if init_samples and mode != "simulation":
-            raise DataError(f"init_samples = {init_samples} needs mode 'simulation' (mode is {mode!r})")
         for seg in raw.segments:
             if len(seg.t) <= lags:
                 raise DataError(

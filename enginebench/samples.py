@@ -5,9 +5,9 @@ ever offer measured outputs strictly before t: a method cannot read y(t) because
 is not in its inputs.
 
 This module is that contract (``Samples``, ``SegmentSamples``, the window features'
-names); it stands on nothing but numpy and the errors. The raw arrays, the pools that
-draw rows from them and ``make_samples``, which builds samples from a dataset, are
-``datasets/pools.py``.
+names, the ``init_samples`` rule); it stands on nothing but numpy, the errors and the
+declared fields. The raw arrays, the pools that draw rows from them and ``make_samples``,
+which builds samples from a dataset, are ``datasets/pools.py``.
 """
 
 from __future__ import annotations
@@ -17,10 +17,28 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from enginebench.declare import Invalid, whole
 from enginebench.errors import DataError
 
 
 MODES = ("static", "window", "simulation")
+
+INIT_SAMPLES = whole("init_samples", 0, "simulation mode: samples that set each evaluated segment's state", low=0,
+                     unit="samples", message="'{name}' must be a whole number of samples >= 0, got {value}")
+"""The ``init_samples`` key, declared once: the experiment spec lists it, :func:`init_samples_problem` checks it."""
+
+
+def init_samples_problem(init_samples: Any, mode: str) -> str | None:
+    """What is wrong with ``init_samples`` in evaluation ``mode``, or None: a whole number of samples >= 0, and
+    above 0 only in simulation mode. The one check of the key: the experiment spec reports it after the spec's
+    origin, a ``SamplePool`` built directly raises it as a DataError."""
+    try:
+        init_samples = INIT_SAMPLES.validate(init_samples)
+    except Invalid as bad:
+        return bad.render(INIT_SAMPLES.name, init_samples)
+    if init_samples and mode != "simulation":
+        return f"init_samples = {init_samples} needs mode = 'simulation' (mode is {mode!r})"
+    return None
 
 
 @dataclass(frozen=True)

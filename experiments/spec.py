@@ -52,7 +52,7 @@ from enginebench.errors import SpecError
 from enginebench.experiments.search import SEARCHES
 from enginebench.experiments.slurm_settings import check_slurm
 from enginebench.results.metrics import CRITERIA
-from enginebench.samples import MODES
+from enginebench.samples import INIT_SAMPLES, MODES, init_samples_problem
 
 ALL_TARGETS = "all"
 """``targets = "all"`` (a string, not a list): every column of role output. A column named "all"
@@ -140,8 +140,7 @@ TOP = Declaration(
     table("selection", {}, "model selection: [selection] table", message="'selection' must be a table"),
     table("method_options", {}, "options per method ([methods.NAME] tables)",
           message="[methods.NAME] entries must be tables of options"),
-    whole("init_samples", 0, "simulation mode: samples that set each evaluated segment's state", low=0,
-          unit="samples", message="'{name}' must be a whole number of samples >= 0, got {value}"),
+    INIT_SAMPLES,
     table("store", {}, "what a run keeps besides its metrics: [store] models = true stores each job's fitted model "
           "(docs/models.md); not part of the config hash", check=_store,
           message="'store' must be a table such as [store] models = true"),
@@ -346,8 +345,8 @@ def from_dict(raw: dict[str, Any], origin: str = "spec", base_dir: Path | None =
     _expect(not twice, origin, f"'windows' lists {', '.join(f'{w:g}' for w in twice)} more than once")
     _expect(mode == "window" or all(w == 0 for w in windows), origin, f"windows > 0 need mode = 'window' (mode is {mode!r})")
     init_samples = v["init_samples"]
-    _expect(mode == "simulation" or init_samples == 0, origin,
-            f"init_samples = {init_samples} needs mode = 'simulation' (mode is {mode!r})")
+    problem = init_samples_problem(init_samples, mode)
+    _expect(problem is None, origin, str(problem))
     split = check_split(v["split"], origin)
     problem = SELECTION.unknown(list(v["selection"]), "key(s)", "allowed")
     _expect(problem is None, origin, f"[selection]: {problem}")
