@@ -227,6 +227,7 @@ class NeuralSimulator(Method):
 
     family = "data-driven"
     modes = frozenset({"simulation"})
+    joint_targets = True  # one network for every target: nx grows with them, the loss sums their standardised errors
     state_per_target: ClassVar[int] = 4
     max_state: ClassVar[int] = 16
 

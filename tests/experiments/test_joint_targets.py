@@ -107,3 +107,22 @@ def test_without_joint_targets_every_method_runs_per_target(tmp_path):
     run = run_experiment(spec(path, joint_targets=False, methods={"arx": {"max_order": 2}}), RunStore(tmp_path / "r"),
                          workers=1).run
     assert sorted(m["target"] for m in run.job_metas().values()) == ["y1", "y2"]
+
+
+def test_a_joint_neural_state_space_job_simulates_every_target_from_one_network(tmp_path):
+    """neural-ss and gru model all outputs in one network: one job, a prediction per target equal to the
+    network fitted on the two-target training samples directly (the joint job hands it every target)."""
+    pytest.importorskip("torch")
+    from enginebench.registry import get
+
+    path = write_dataset(two_outputs(n=120), tmp_path / "two.parquet")
+    options = {"hidden": 8, "layers": 1, "steps": 20, "batch_size": 8}
+    run = run_experiment(spec(path, methods={"neural-ss": options}), RunStore(tmp_path / "runs"), workers=1).run
+    metas = run.job_metas()
+    assert [m["target"] for m in metas.values()] == [JOINT]
+    assert [m["params"]["nx"] for m in metas.values()] == [8]  # 4 states per target, two targets
+    m = run.metrics()
+    test_rmse = m[(m["metric"] == "rmse") & (m["split"] == "test")]
+    assert sorted(test_rmse["target"]) == ["y1", "y2"]
+    assert np.isfinite(test_rmse["value"]).all()
+    assert get("neural-ss").joint_targets and get("gru").joint_targets
