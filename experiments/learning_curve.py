@@ -81,7 +81,18 @@ class Amount:
 
     @property
     def label(self) -> str:
-        return f"{self.months:g}mo"
+        """'3mo': the amount as split and part names show it."""
+        return at_amount("", self.months).removeprefix("@")
+
+
+def at_amount(name: str, months: float) -> str:
+    """A split or part name at an amount of training data: ``("test", 3.0) -> "test@3mo"``.
+
+    The amount travels as data (a problem's ``coordinates``, the metric rows' ``train_months``
+    column); this only names it, for job keys and the stored rows' ``split``, and the summary
+    finds a part's rows by naming it from their ``train_months``, never by reading a name back.
+    """
+    return f"{name}@{months:g}mo"
 
 
 def parse_months(text: str) -> list[float]:
@@ -141,11 +152,11 @@ def _training_problems(spec: ExperimentSpec, split_name: str, train: Dataset, am
                        parts: dict) -> dict[tuple[str, float, str], Problem]:
     """The problems of one split at one amount: the training part cut to its first months, the parts shared."""
     raw = RawSegments.from_dataset(train, outputs=spec.targets, internals=[])
-    name = f"{split_name}@{amount.label}"
+    name = at_amount(split_name, amount.months)
     return {(target, window, name): Problem(
         train=SamplePool(raw, [target], spec.mode, window, physical_model=pm),
         parts=parts[(target, window, split_name)], train_size=amount.train_size,
-        coordinates={"train_months": amount.months}, label=f"@{amount.label}")
+        coordinates={"train_months": amount.months}, label=at_amount("", amount.months))
         for target in spec.targets for window in spec.windows}
 
 
@@ -274,7 +285,9 @@ def summarize_curve(metrics: pd.DataFrame, metric: str = "mae", part: str = "tes
     if "train_months" not in metrics.columns:
         raise SpecError("this run is not a learning curve (its rows carry no train_months); "
                         "use 'enginebench table' for ordinary runs")
-    scored = metrics[metrics["split"].astype(str).str.split("@").str[0] == part]
+    months = metrics["train_months"]
+    named = months.map({m: at_amount(part, m) for m in months.dropna().unique()})  # each row's part at its amount
+    scored = metrics[metrics["split"].astype(str) == named]
     ok = scored[(scored["status"] == "ok") & (scored["metric"] == metric)].dropna(subset=["value"])
     failed = (metrics[metrics["status"] != "ok"].drop_duplicates(CURVE_KEYS + ["repetition"])
               .groupby(CURVE_KEYS).size())
