@@ -21,7 +21,7 @@ def datasets_list() -> None:
 
     click.echo(note_text([f"data home: {catalog.data_home()}  (set ENGINEBENCH_DATA to move it)"]), nl=False)
     rows = []
-    for b in catalog.BUILTINS.values():
+    for b in catalog.builtin_datasets().values():
         if b.generator is not None:
             made = [size for size in b.sizes if catalog.cached_path(b.name, size).is_file()]
             state = "generated: " + ", ".join(made) if made else "not generated"

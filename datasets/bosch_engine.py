@@ -20,6 +20,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from enginebench.datasets.catalog import Builtin
 from enginebench.datasets.dataset import Dataset
 from enginebench.datasets.import_spec import spec_from_dict
 from enginebench.datasets.importer import import_spec
@@ -89,3 +90,21 @@ def import_gengine2(directory: str | Path) -> Dataset:
     meta["published_split"] = {"train": train, "test": test}
     meta["measurements"] = {record_name(n): p.name for n, p in files.items()}
     return ds.with_frame(ds.frame, **meta)
+
+
+DATASETS = (
+    Builtin(
+        name=NAME,
+        kind="real",
+        description="A real gasoline engine on a test bench (Bosch Research, gengine2): transient measurements at "
+                    "10 Hz, inputs speed, load, lambda, ignition; outputs pn, hc, nox, t_manifold, t_cat (all "
+                    "standardised); published split by measurement (0-15 train, 16-21 test)",
+        licence="CC BY-SA 4.0",
+        importer=import_gengine2,
+        targets=("pn", "hc", "nox", "t_manifold", "t_cat"),
+        notes={"import": "enginebench datasets import bosch-gengine2 --from DIR (the folder with the headerless "
+                         "raw_0000NN_measurement_000000.csv files)"},
+        order=3,
+    ),
+)
+"""The catalog's entry (``datasets/catalog.py`` finds it here)."""

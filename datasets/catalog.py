@@ -1,5 +1,12 @@
 """Built-in datasets and where datasets live on disk.
 
+A built-in is declared where its code is: a module of this package that holds a top-level
+``DATASETS = (Builtin(...), ...)`` (an importer module such as ``sysid_benchmarks.py`` declares
+its datasets with its import functions). :func:`builtin_datasets` finds those modules by
+reading the package's source files for that line, so only they are imported, on first use
+(never the generators' packages, which load scipy: their two entries are declared here with
+wrappers that import on call). Adding a dataset importer is one module.
+
 Imported and generated datasets are cached as Parquet files in the data home:
 ``$ENGINEBENCH_DATA`` if set, else ``~/.cache/enginebench/datasets``. An experiment names
 a dataset by its built-in name, by a ``.parquet`` file, or by a ``.toml`` import spec.
@@ -7,8 +14,11 @@ a dataset by its built-in name, by a ``.parquet`` file, or by a ``.toml`` import
 
 from __future__ import annotations
 
+import importlib
 import os
+import re
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Any, Callable
 
@@ -30,30 +40,8 @@ class Builtin:
     notes: dict[str, Any] = field(default_factory=dict)
     sizes: dict[str, Any] = field(default_factory=dict)  # generated data: size name -> generator argument
     default_size: str = "small"
-
-
-def _gas_turbine_import(directory: Path) -> Dataset:
-    from enginebench.datasets.gas_turbine.importer import import_directory
-
-    return import_directory(directory)
-
-
-def _silverbox_import(directory: Path) -> Dataset:
-    from enginebench.datasets.sysid_benchmarks import import_silverbox
-
-    return import_silverbox(directory)
-
-
-def _f16_import(directory: Path) -> Dataset:
-    from enginebench.datasets.sysid_benchmarks import import_f16
-
-    return import_f16(directory)
-
-
-def _gengine2_import(directory: Path) -> Dataset:
-    from enginebench.datasets.bosch_engine import import_gengine2
-
-    return import_gengine2(directory)
+    order: int = 100
+    """Place in listings and in the 'unknown dataset' message: lower first, then real before synthetic, then name."""
 
 
 def _turboshaft(size_arg: float, seed: int, progress: Callable[[float], None] | None) -> Dataset:
@@ -68,51 +56,8 @@ def _marine(size_arg: str, seed: int, progress: Callable[[float], None] | None) 
     return generate(size=size_arg, seed=seed, progress=progress)
 
 
-BUILTINS: dict[str, Builtin] = {
-    "gas-turbine-emissions": Builtin(
-        name="gas-turbine-emissions",
-        kind="real",
-        description="36,733 hourly records 2011-2015 of an industrial gas turbine (UCI); targets NOX, CO, TAT; "
-                    "published split 2011-2013 / 2014-2015",
-        licence="CC BY 4.0",
-        importer=_gas_turbine_import,
-        targets=("NOX", "CO", "TAT"),
-        notes={"import": "enginebench datasets import gas-turbine-emissions --from DIR (the folder with gt_2011.csv ... gt_2015.csv)"},
-    ),
-    "silverbox": Builtin(
-        name="silverbox",
-        kind="real",
-        description="Silverbox (Wigren & Schoukens 2013): electronic nonlinear mass-spring-damper, one record "
-                    "SNLS80mV of 131,072 samples at 610.3515625 Hz; input V1, output V2 (V)",
-        licence="none stated by the distributor; cite Wigren & Schoukens, ECC 2013",
-        importer=_silverbox_import,
-        targets=("V2",),
-        notes={"import": "enginebench datasets import silverbox --from DIR (the folder with SNLS80mV.csv)"},
-    ),
-    "f16-gvt": Builtin(
-        name="f16-gvt",
-        kind="real",
-        description="F-16 ground vibration test (Noel & Schoukens 2017): 4 multisine records of 73,728 samples "
-                    "at 400 Hz; input Force (N), outputs Acceleration1-3 (m/s^2); Voltage internal",
-        licence="none stated by the distributor; cite Noel & Schoukens, 2017",
-        importer=_f16_import,
-        targets=("Acceleration1", "Acceleration2", "Acceleration3"),
-        notes={"import": "enginebench datasets import f16-gvt --from DIR (the folder with the four "
-                         "F16Data_FullMSine_*.csv files)"},
-    ),
-    "bosch-gengine2": Builtin(
-        name="bosch-gengine2",
-        kind="real",
-        description="A real gasoline engine on a test bench (Bosch Research, gengine2): transient measurements at "
-                    "10 Hz, inputs speed, load, lambda, ignition; outputs pn, hc, nox, t_manifold, t_cat (all "
-                    "standardised); published split by measurement (0-15 train, 16-21 test)",
-        licence="CC BY-SA 4.0",
-        importer=_gengine2_import,
-        targets=("pn", "hc", "nox", "t_manifold", "t_cat"),
-        notes={"import": "enginebench datasets import bosch-gengine2 --from DIR (the folder with the headerless "
-                         "raw_0000NN_measurement_000000.csv files)"},
-    ),
-    "turboshaft": Builtin(
+DATASETS = (
+    Builtin(
         name="turboshaft",
         kind="synthetic",
         description="SYNTHETIC twin-engine helicopter flights at 12 Hz (13 h full, 1 h small); targets WF, TRQ; "
@@ -121,8 +66,9 @@ BUILTINS: dict[str, Builtin] = {
         generator=_turboshaft,
         targets=("WF", "TRQ"),
         sizes={"small": 1.0, "full": 13.0},
+        order=4,
     ),
-    "marine-diesel": Builtin(
+    Builtin(
         name="marine-diesel",
         kind="synthetic",
         description="SYNTHETIC medium-speed propulsion diesel of a patrol vessel at 1/3 Hz (small: days; full: 3347 h); "
@@ -130,8 +76,38 @@ BUILTINS: dict[str, Builtin] = {
         licence="CC0-1.0 (generated)",
         generator=_marine,
         sizes={"small": "small", "full": "full"},
+        order=5,
     ),
-}
+)
+"""The generated built-ins (their packages are too heavy to import for a listing); the real ones are declared
+by their importer modules."""
+
+_DECLARES = re.compile(r"^DATASETS\b[^=\n]*=", re.MULTILINE)
+
+
+def _declaring_modules() -> list[str]:
+    """The modules of this package whose source holds a top-level ``DATASETS = ...`` line (nothing imported)."""
+    root = Path(__file__).resolve().parent
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        if _DECLARES.search(path.read_text(encoding="utf-8")):
+            parts = path.relative_to(root).with_suffix("").parts
+            found.append(".".join((__package__, *(parts[:-1] if parts[-1] == "__init__" else parts))))
+    return found
+
+
+@cache
+def builtin_datasets() -> dict[str, Builtin]:
+    """Every built-in dataset by name, in listing order: the ``DATASETS`` of the modules that declare them."""
+    found: dict[str, tuple[Builtin, str]] = {}
+    for module in _declaring_modules():
+        for builtin in importlib.import_module(module).DATASETS:
+            if builtin.name in found:
+                raise DataError(f"built-in dataset {builtin.name!r} is declared twice: in {found[builtin.name][1]} "
+                                f"and in {module}; rename one")
+            found[builtin.name] = (builtin, module)
+    ordered = sorted((b for b, _ in found.values()), key=lambda b: (b.order, b.kind != "real", b.name))
+    return {b.name: b for b in ordered}
 
 
 def variant_name(size: str, seed: int = 0) -> str:
@@ -182,9 +158,10 @@ def import_builtin(name: str, source: str | Path) -> Path:
 
 
 def get_builtin(name: str) -> Builtin:
-    if name not in BUILTINS:
-        raise DataError(f"unknown dataset {name!r}; built-ins: {', '.join(BUILTINS)} (or give a .parquet file or a .toml import spec)")
-    return BUILTINS[name]
+    builtins = builtin_datasets()
+    if name not in builtins:
+        raise DataError(f"unknown dataset {name!r}; built-ins: {', '.join(builtins)} (or give a .parquet file or a .toml import spec)")
+    return builtins[name]
 
 
 def locate(ref: str | Path, *, variant: str = "") -> Path | None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from enginebench.datasets.catalog import Builtin
 from enginebench.datasets.dataset import Dataset
 from enginebench.datasets.import_spec import spec_from_dict
 from enginebench.datasets.importer import import_spec
@@ -116,3 +117,31 @@ def import_f16(directory: str | Path) -> Dataset:
         },
     }
     return _import(directory, "f16-gvt", doc, F16_META)
+
+
+DATASETS = (
+    Builtin(
+        name="silverbox",
+        kind="real",
+        description="Silverbox (Wigren & Schoukens 2013): electronic nonlinear mass-spring-damper, one record "
+                    "SNLS80mV of 131,072 samples at 610.3515625 Hz; input V1, output V2 (V)",
+        licence="none stated by the distributor; cite Wigren & Schoukens, ECC 2013",
+        importer=import_silverbox,
+        targets=("V2",),
+        notes={"import": "enginebench datasets import silverbox --from DIR (the folder with SNLS80mV.csv)"},
+        order=1,
+    ),
+    Builtin(
+        name="f16-gvt",
+        kind="real",
+        description="F-16 ground vibration test (Noel & Schoukens 2017): 4 multisine records of 73,728 samples "
+                    "at 400 Hz; input Force (N), outputs Acceleration1-3 (m/s^2); Voltage internal",
+        licence="none stated by the distributor; cite Noel & Schoukens, 2017",
+        importer=import_f16,
+        targets=("Acceleration1", "Acceleration2", "Acceleration3"),
+        notes={"import": "enginebench datasets import f16-gvt --from DIR (the folder with the four "
+                         "F16Data_FullMSine_*.csv files)"},
+        order=2,
+    ),
+)
+"""The catalog's entries (``datasets/catalog.py`` finds them here)."""

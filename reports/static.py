@@ -152,7 +152,7 @@ def _frame_html(frame: pd.DataFrame) -> str:
 def _synthetic(dataset: str) -> bool:
     from enginebench.datasets import catalog
 
-    builtin = catalog.BUILTINS.get(str(dataset))
+    builtin = catalog.builtin_datasets().get(str(dataset))
     return builtin is not None and builtin.kind == "synthetic"
 
 

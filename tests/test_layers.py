@@ -33,9 +33,9 @@ BELOW = {
 """What each layer may import besides itself: ``methods``, ``datasets`` and ``results`` stand on the contracts alone;
 the command line and the Python facades (``enginebench.run`` shows the command line's progress bar) are one top layer."""
 KNOWN_CIRCLES: list[set[str]] = [
-    # built-in datasets are imported by name from the catalog, and an FMU calibration loads a dataset by name
+    # the catalog loads an import spec, whose [physical_model] FMU calibration loads a dataset by name
     {"enginebench.datasets.catalog", "enginebench.datasets.importer", "enginebench.datasets.fmu",
-     "enginebench.datasets.fmu_calibrate", "enginebench.datasets.bosch_engine", "enginebench.datasets.sysid_benchmarks"},
+     "enginebench.datasets.fmu_calibrate"},
     # the marine physical model calibrates itself to the factory test on first use
     # and builds its C step (c_step.py, which reads pm's constants) when an export asks for it
     {"enginebench.datasets.marine_diesel.calibration", "enginebench.datasets.marine_diesel.c_step",

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from enginebench.datasets.catalog import Builtin
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.schema import Column, Schema
 from enginebench.errors import DataError
@@ -93,3 +94,19 @@ def import_directory(directory: str | Path) -> Dataset:
         offset += n
     frame = pd.concat(parts, ignore_index=True)
     return Dataset(NAME, frame, Schema(COLUMNS), DT, dict(META))
+
+
+DATASETS = (
+    Builtin(
+        name=NAME,
+        kind="real",
+        description="36,733 hourly records 2011-2015 of an industrial gas turbine (UCI); targets NOX, CO, TAT; "
+                    "published split 2011-2013 / 2014-2015",
+        licence="CC BY 4.0",
+        importer=import_directory,
+        targets=TARGETS,
+        notes={"import": "enginebench datasets import gas-turbine-emissions --from DIR (the folder with gt_2011.csv ... gt_2015.csv)"},
+        order=0,
+    ),
+)
+"""The catalog's entry (``datasets/catalog.py`` finds it here)."""
