@@ -7,8 +7,9 @@ and factorising it (LAPACK gelsd, an SVD) costs O(rows x columns^2) per point; a
 (170,000 rows, 641 columns) that is seconds a point and gigabytes of copies.
 
 Here the data are read once per target into the Gram matrix ``G = Z^T Z`` of the longest
-lags (Z = [lag columns | y], built one segment at a time from zero-copy lag views, so memory
-is bounded by one segment). Every grid point's normal matrix is then a principal submatrix of
+lags (Z = [lag columns | y]), formed from the signals' lagged products (:func:`lagged_products`:
+one dot product per lag difference plus the few rows at the ends) instead of the lag columns:
+O(rows x lags) per pair of signals, not O(rows x lags^2), and no lag matrix in memory. Every grid point's normal matrix is then a principal submatrix of
 G plus the outer products of its few extra rows (the rows between its own first lag and the
 grid's longest one, where its lags already lie inside the segment: each point keeps exactly its
 own rows). It is solved by a Cholesky factor of the equilibrated normal matrix and one step of
@@ -78,15 +79,29 @@ class LagGram:
         self.G_u = np.zeros((nu, nu))
         self.G_yu = np.zeros((self.k, ny, nu))
         self.G_y = np.zeros((self.k, ny, ny))
+        ylag = np.r_[1:ny, 0]  # Z_k's columns: y lags 1..Py, then y itself (lag 0)
         for U, Y in self.segments:
             if len(Y) <= self.L:
                 continue
-            Zu = self._inputs(U, self.L, len(Y))
-            self.G_u += Zu.T @ Zu
+            start, stop, Pu = self.L, len(Y), self.Pu
+            # Gram blocks from lagged products of the signals (lagged_products), never the lag columns themselves
+            us = [np.ascontiguousarray(U[:, j]) for j in range(self.m)]
+            for j in range(self.m):
+                for l in range(j, self.m):
+                    block = lagged_products(us[j], us[l], Pu, Pu, start, stop)
+                    self.G_u[j * Pu:(j + 1) * Pu, l * Pu:(l + 1) * Pu] += block
+                    if l != j:
+                        self.G_u[l * Pu:(l + 1) * Pu, j * Pu:(j + 1) * Pu] += block.T
+                sums = lagged_sums(us[j], Pu, start, stop)
+                self.G_u[j * Pu:(j + 1) * Pu, self.const] += sums
+                self.G_u[self.const, j * Pu:(j + 1) * Pu] += sums
+            self.G_u[self.const, self.const] += stop - start
             for t in range(self.k):
-                Zy = self._outputs(np.ascontiguousarray(Y[:, t]), self.L, len(Y))
-                self.G_yu[t] += Zy.T @ Zu
-                self.G_y[t] += Zy.T @ Zy
+                y = np.ascontiguousarray(Y[:, t])
+                for j in range(self.m):
+                    self.G_yu[t][:, j * Pu:(j + 1) * Pu] += lagged_products(y, us[j], ny, Pu, start, stop)[ylag]
+                self.G_yu[t][:, self.const] += lagged_sums(y, ny, start, stop)[ylag]
+                self.G_y[t] += lagged_products(y, y, ny, ny, start, stop)[np.ix_(ylag, ylag)]
 
     def _inputs(self, U: np.ndarray, start: int, stop: int) -> np.ndarray:
         """[u_j lags 0..Pu-1 per input, 1] at rows start..stop-1 (lags before the first row hold 0)."""
@@ -141,6 +156,49 @@ class LagGram:
         for U, y in used:
             g += _correlate(y, U, y - _apply(y, U, o, theta), o)
         return theta + scipy.linalg.cho_solve((R, False), g / d, check_finite=False) / d
+
+
+def lagged_products(x: np.ndarray, w: np.ndarray, P: int, Q: int, start: int, stop: int) -> np.ndarray:
+    """``out[i, k] = sum_{t=start}^{stop-1} x(t - i) w(t - k)`` for lags i < P, k < Q (samples before 0 count as 0).
+
+    The Gram block of two signals' lag columns without forming them: entry (i, i + d) is the
+    product of x and w shifted by d summed over the window of rows seen at lag i; every such
+    window holds the rows ``start .. stop - P`` (one dot product per shift d, P + Q - 1 of them),
+    plus at most P - 1 rows at each end, added by cumulative sums of those few products. O(rows
+    (P + Q)) instead of O(rows P Q), and no (rows x lags) matrix in memory. Short windows (fewer
+    rows than 4 (P + Q)) are summed from their lag columns directly.
+    """
+    x, w = np.asarray(x, dtype=np.float64), np.asarray(w, dtype=np.float64)
+    n = stop - start
+    if n < 4 * (P + Q):
+        X = sliding_window_view(_padded(x, start - P + 1, stop), P)[:, ::-1]
+        W = sliding_window_view(_padded(w, start - Q + 1, stop), Q)[:, ::-1]
+        return X.T @ W
+    off = P + Q  # index of sample s in the padded signals is s - start + off
+    xp = _padded(x, start - off, stop)
+    wp = np.concatenate([_padded(w, start - off, stop), np.zeros(P)])  # tail products past a lag's rows: unused
+    shifts = np.arange(-(P - 1), Q)  # d = k - i
+    core_x = xp[off:off + n - P + 1]  # s = start .. stop - P
+    core = np.array([core_x @ wp[off - d:off - d + n - P + 1] for d in shifts])
+    # rows seen at lag i beyond the core: head s = start - i .. start - 1, tail s = stop - P + 1 .. stop - 1 - i
+    head_s = np.arange(-(P - 1), 0)  # s - start, oldest first
+    tail_s = np.arange(n - P + 1, n)  # s - start
+    head = xp[off + head_s][None, :] * wp[off + head_s[None, :] - shifts[:, None]]  # (shifts, P - 1)
+    tail = xp[off + tail_s][None, :] * wp[off + tail_s[None, :] - shifts[:, None]]
+    # head part at lag i: the newest i head products; tail part at lag i: the oldest P - 1 - i tail products
+    head_sum = np.concatenate([np.zeros((len(shifts), 1)), np.cumsum(head[:, ::-1], axis=1)], axis=1)  # [:, i]
+    tail_sum = np.concatenate([np.zeros((len(shifts), 1)), np.cumsum(tail, axis=1)], axis=1)  # [:, j]: oldest j
+    i = np.arange(P)[:, None]
+    k = np.arange(Q)[None, :]
+    d = k - i + (P - 1)  # row of shifts
+    return core[d] + head_sum[d, i] + tail_sum[d, P - 1 - i]
+
+
+def lagged_sums(x: np.ndarray, P: int, start: int, stop: int) -> np.ndarray:
+    """``out[i] = sum_{t=start}^{stop-1} x(t - i)`` for i < P (samples before 0 count as 0): a lag column's sum."""
+    xp = _padded(np.asarray(x, dtype=np.float64), start - P + 1, stop)
+    n = stop - start
+    return np.array([xp[P - 1 - i:P - 1 - i + n].sum() for i in range(P)])
 
 
 def _padded(a: np.ndarray, lo: int, hi: int) -> np.ndarray:

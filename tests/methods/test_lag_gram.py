@@ -4,6 +4,7 @@ that point's own regression matrix, and ill-posed points are handed back to the 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.linalg
 
 from enginebench.methods.numerics.lag_gram import LagGram, Orders, lag_columns
@@ -64,3 +65,27 @@ def test_targets_share_the_input_columns_and_each_equals_its_own_fit():
         one = [(U, Y[:, target]) for U, Y in two]
         for o in points:
             np.testing.assert_allclose(gram.solve(o, target), _reference(one, o), rtol=1e-9, atol=1e-10)
+
+
+@pytest.mark.parametrize("n, P, Q, start, stop", [
+    (500, 5, 7, 3, 500), (1000, 64, 64, 0, 1000), (1000, 8, 3, 40, 900), (3000, 64, 65, 64, 3000),
+    (600, 1, 1, 0, 600), (2000, 1, 64, 0, 2000), (60, 8, 8, 2, 60),  # the last: a short window, summed directly
+])
+def test_lagged_products_equal_the_lag_columns_products(n, P, Q, start, stop):
+    """The Gram block from lagged products equals the product of the materialised lag columns (zeros before
+    sample 0), and a lag column's sum equals lagged_sums; at every size, start and lag count."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    from enginebench.methods.numerics.lag_gram import lagged_products, lagged_sums
+
+    rng = np.random.default_rng(n + P + Q)
+    x, w = rng.normal(size=n) + 3.0, rng.normal(size=n)
+
+    def columns(s: np.ndarray, lags: int) -> np.ndarray:
+        padded = np.r_[np.zeros(lags), s]
+        return sliding_window_view(padded[start + 1:stop + lags], lags)[:, ::-1]
+
+    X, W = columns(x, P), columns(w, Q)
+    assert X.shape == (stop - start, P) and np.array_equal(X[:, 0], x[start:stop])
+    np.testing.assert_allclose(lagged_products(x, w, P, Q, start, stop), X.T @ W, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(lagged_sums(x, P, start, stop), X.sum(axis=0), rtol=1e-12)
