@@ -26,14 +26,16 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from enginebench.results.atomic import damage_text, read_parquet, table_bytes
+from enginebench.results.atomic import READ_ERRORS, damage_text, read_parquet, table_bytes
+
+if TYPE_CHECKING:  # pandas is imported where a frame is made: listing runs reads none (issue 35)
+    import pandas as pd
 
 JOB_META_KEY = b"enginebench.job"
 """The key of a job file's Parquet metadata holding the job's metadata (JSON)."""
@@ -61,6 +63,8 @@ def encode_job(rows: pd.DataFrame, meta: dict[str, Any]) -> tuple[bytes, bytes |
     A selection table in ``meta`` (a non-empty DataFrame under ``SELECTION_META``) is taken
     out of the metadata; its SHA-256 and row count are recorded there as ``selection_file``.
     """
+    import pandas as pd
+
     meta = dict(meta)
     selection = meta.pop(SELECTION_META, None)
     data = None
@@ -108,8 +112,23 @@ def check_content(table: pa.Table, meta: dict[str, Any]) -> None:
         raise ValueError("the file does not match its SHA-256 checksum (a changed byte)")
 
 
-def load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, dict[str, Any]]:
-    """A job file's rows (when ``frame``) and metadata; raises one of READ_ERRORS when the file is damaged."""
+_CHECKED: dict[bytes, tuple[pa.Table, bytes]] = {}
+"""Job files already read and checked in this process, by the SHA-256 of their bytes: the parsed table and its
+job metadata (JSON). One command reads a run's job files several times (its rows, then the metadata for the notes,
+the verdict and the picks); the key is the content itself, so a file rewritten in place, even within one tick of
+the file system's clock and at the same size, is read and checked again."""
+_CHECKED_MAX = 4096
+
+
+def _checked_table(path: Path) -> tuple[pa.Table, bytes]:
+    """The job file's table and its job metadata (JSON bytes), checked (``check_content``); raises one of
+    READ_ERRORS when the file is damaged. Parsed and checked once per content (``_CHECKED``)."""
+    try:
+        key = hashlib.sha256(Path(path).read_bytes()).digest()
+    except OSError:
+        key = None  # read_parquet says what is wrong, as it always did
+    if key is not None and key in _CHECKED:
+        return _CHECKED[key]
     table = read_parquet(path)
     raw = (table.schema.metadata or {}).get(JOB_META_KEY)
     if raw is None:
@@ -118,6 +137,45 @@ def load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, di
     if not isinstance(meta, dict):
         raise ValueError("the job metadata is not a JSON object")
     check_content(table, meta)
+    try:  # kept only when the bytes read and checked are the bytes of the key (no rewrite in between)
+        same = key is not None and hashlib.sha256(Path(path).read_bytes()).digest() == key
+    except OSError:
+        same = False
+    if same:
+        if len(_CHECKED) >= _CHECKED_MAX:
+            _CHECKED.pop(next(iter(_CHECKED)))
+        _CHECKED[key] = (table, raw)
+    return table, raw
+
+
+def job_rows_frame(paths: list[Path]) -> pd.DataFrame | None:
+    """The metric rows of the job files ``paths`` as one frame, value for value ``pd.concat`` of each file's
+    ``load_job`` frame (``ignore_index``), converted to pandas once instead of once per file; None when the files
+    differ in columns, types or pandas metadata, or one cannot be read or converted (the caller then reads them
+    one by one, which names a damaged file)."""
+    tables = []
+    for path in paths:
+        try:
+            tables.append(_checked_table(path)[0])
+        except READ_ERRORS:
+            return None
+    if not tables:
+        return None
+    first = tables[0]
+    pandas_meta = (first.schema.metadata or {}).get(b"pandas")
+    if any(not t.schema.equals(first.schema, check_metadata=False)
+           or (t.schema.metadata or {}).get(b"pandas") != pandas_meta for t in tables[1:]):
+        return None
+    try:
+        return pa.concat_tables(tables).to_pandas().reset_index(drop=True)
+    except READ_ERRORS:
+        return None
+
+
+def load_job(path: Path, *, frame: bool = True) -> tuple[pd.DataFrame | None, dict[str, Any]]:
+    """A job file's rows (when ``frame``) and metadata; raises one of READ_ERRORS when the file is damaged."""
+    table, raw = _checked_table(path)
+    meta = json.loads(raw)  # a fresh dict on every call: callers may change theirs
     if not frame:
         table.schema.names  # noqa: B018 - decodes the column names, which a garble can break
         json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
@@ -152,6 +210,8 @@ def read_selection(data: bytes) -> pd.DataFrame:
 def selection_frame(frames: list[pd.DataFrame]) -> pd.DataFrame:
     """Selection tables of several jobs as one frame with the columns in order (``SELECTION_COLUMNS``, the
     ``param:<name>`` columns after ``point``); an empty frame with the fixed columns when there is none."""
+    import pandas as pd
+
     if not frames:
         return pd.DataFrame({c: pd.Series(dtype=t) for c, t in SELECTION_COLUMNS.items()})
     out = pd.concat(frames, ignore_index=True)

@@ -41,9 +41,8 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
 import pyarrow as pa
 
 from enginebench.errors import StoreError
@@ -51,8 +50,11 @@ from enginebench.results import run_lock
 from enginebench.results.atomic import READ_ERRORS, atomic_write_bytes, damage_text, read_parquet, table_bytes, write_failed
 from enginebench.results.model_store import MODEL_META, MODELS_DIR
 from enginebench.results.job_files import (
-    SELECTION_DIR, encode_job, jsonable, load_job, read_selection, selection_bytes, selection_frame,
+    SELECTION_DIR, encode_job, job_rows_frame, jsonable, load_job, read_selection, selection_bytes, selection_frame,
 )
+
+if TYPE_CHECKING:  # pandas is imported where a frame is made: listing runs reads none (issue 35)
+    import pandas as pd
 
 REQUIRED_FILES = ("run.json", "config.toml", "environment.json")
 """The files every run folder needs; a run missing one is damaged."""
@@ -474,4 +476,9 @@ class Run:
             raise StoreError(f"run {self.id}: {why}; the run folder is damaged (`enginebench runs rm {self.id}` removes it)")
         if not files:
             raise StoreError(f"run {self.id} has no finished job yet")
+        together = job_rows_frame(files)  # one conversion to pandas for all files (the same frame, faster)
+        if together is not None:
+            return together
+        import pandas as pd
+
         return pd.concat([self._read_job(p)[0] for p in files], ignore_index=True)

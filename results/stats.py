@@ -18,9 +18,9 @@ import math
 import warnings
 
 import numpy as np
-import scipy.special
 
 from enginebench.errors import DataError
+from enginebench.results.student_t import t_cdf, t_quantile
 
 __all__ = [
     "bootstrap_interval",
@@ -103,9 +103,9 @@ def t_interval(values: object, level: float = 0.95) -> tuple[float, float, float
     if r == 1 or identical(x):
         return mean, float("nan"), float("nan")
     with np.errstate(over="ignore"):
-        # the Student-t quantile (equal to scipy.stats.t.ppf); scipy.stats itself is imported only by the tests
-        # between methods, so printing a stored table does not pay its half-second import
-        half = float(scipy.special.stdtrit(r - 1, 0.5 * (1.0 + level))) * sd / np.sqrt(r)
+        # the Student-t quantile (scipy.stats.t.ppf's, to 1e-10 relative: tests/results/test_student_t.py) in plain
+        # Python, so printing a stored table imports no scipy at all (scipy.special alone costs a quarter second)
+        half = t_quantile(0.5 * (1.0 + level), r - 1) * sd / np.sqrt(r)
     return (mean, *_bounds(mean, half))
 
 
@@ -195,9 +195,9 @@ def paired_ttest(a: object, b: object) -> tuple[float, float]:
     d = x / s - y / s
     n = d.size
     t = float(d.mean() / (d.std(ddof=1) / np.sqrt(n)))
-    # the t distribution's two tails (what scipy.stats.ttest_rel reports), from scipy.special: printing a stored
-    # table with its paired tests does not pay scipy.stats' half-second import
-    return t, float(2.0 * scipy.special.stdtr(n - 1, -abs(t)))
+    # the t distribution's two tails (what scipy.stats.ttest_rel reports) from results.student_t: printing a stored
+    # table with its paired tests imports no scipy
+    return t, 2.0 * t_cdf(-abs(t), n - 1)
 
 
 def holm(pvalues: object) -> np.ndarray:
