@@ -53,6 +53,10 @@ class KRLSFitted:
     y_mean: np.ndarray
     """Added back to every prediction, (k,); zeros when the target is not centred."""
     solver: str = "exact"
+    feature_names: tuple[str, ...] = ()
+    """The training samples' feature columns (static mode: the inputs; window mode: ``u[t-k]``, ``y[t-k]``) and
+    input signals, which the C step (``c_model``) reads; empty in a model stored before the C step existed."""
+    input_names: tuple[str, ...] = ()
 
 
 class KRLS(Method):
@@ -68,6 +72,8 @@ class KRLS(Method):
     family = "data-driven"
     modes = frozenset({"static", "window"})
     summary = "Gaussian-kernel regularised least squares (exact, one tridiagonalisation per gamma)"
+    export_note = ("FMU of a static-mode model (FMI 2.0 co-simulation from its C step: enginebench export RUN "
+                   "--method krls --fmu OUT.fmu); a window-mode model reads past measured outputs: not exportable")
     declared_options = Declaration(
         flag("standardize", True, "scale each feature to zero mean and unit variance on the training rows"),
         flag("center_target", True, "fit the targets minus their training mean (added back to predictions)"),
@@ -83,6 +89,15 @@ class KRLS(Method):
         whole("centres", 2000, "Nystroem centres of the FALKON solver", low=1, unit="rows"),
         text("device", "auto", "torch device of the FALKON solver: auto, cpu, cuda or cuda:INDEX"),
     )
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """The C step and its note are krls's own: a subclass (nfir, the hybrids) predicts otherwise, so it offers
+        the one it defines itself or none (``Method.c_model``)."""
+        super().__init_subclass__(**kwargs)
+        if "c_model" not in cls.__dict__:
+            cls.c_model = Method.c_model  # type: ignore[method-assign]
+        if "export_note" not in cls.__dict__:
+            cls.export_note = None
 
     def uses_falkon(self, n_rows: int) -> bool:
         """Exact below ``exact_max_rows`` training rows (solver 'auto'), FALKON above or on request."""
@@ -135,13 +150,21 @@ class KRLS(Method):
         if self.uses_falkon(len(Xs)):
             solver = self._falkon(gamma, lam).fit(Xs, yc, rng)
             return KRLSFitted(scaler=scaler, X_train=solver.centres_, alpha=solver.coef_ * y_scale, gamma=gamma,
-                              lam=lam, y_mean=y_mean, solver="falkon")
+                              lam=lam, y_mean=y_mean, solver="falkon", **_names(train))
         alpha = ridge_solutions(gaussian(sq_distances(Xs), gamma), yc, np.array([lam]), overwrite=True)[0][:, 0, :]
-        return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha * y_scale, gamma=gamma, lam=lam, y_mean=y_mean)
+        return KRLSFitted(scaler=scaler, X_train=Xs, alpha=alpha * y_scale, gamma=gamma, lam=lam, y_mean=y_mean,
+                          **_names(train))
 
     def predict(self, fitted: KRLSFitted, data: Samples) -> list[np.ndarray]:
         Xe = self._eval_features(fitted.scaler, fitted.X_train, data)
         return split_rows(gaussian_apply(Xe, fitted.X_train, fitted.gamma, fitted.alpha) + fitted.y_mean, data)
+
+    def c_model(self, fitted: KRLSFitted) -> Any:
+        """The C step of ``fitted`` for an FMU (``methods/export/models.py``: the features must be inputs, as in
+        static mode; a window model reading past measured outputs is refused in one line)."""
+        from enginebench.methods.export.models import krls_c
+
+        return krls_c(fitted)
 
     def describe(self, fitted: KRLSFitted) -> dict[str, Any]:
         return {"gamma": float(fitted.gamma), "lambda": float(fitted.lam), "solver": fitted.solver,
@@ -202,6 +225,10 @@ def gamma_kernels(Xs: np.ndarray, Xe: np.ndarray, gammas: np.ndarray, groups: Ro
         if groups is not None:
             groups.weigh(K, Ke)
         yield np.flatnonzero(gammas == gamma), K, Ke
+
+
+def _names(train: Samples) -> dict[str, tuple[str, ...]]:
+    return {"feature_names": tuple(train.feature_names), "input_names": tuple(train.input_names)}
 
 
 def _params(params: Params) -> tuple[float, float]:

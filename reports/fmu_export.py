@@ -4,7 +4,9 @@ The run must have stored its models (``run --keep-models``): the stored model ho
 the test part with the job's predictions of it (``results/model_store.py``). The FMU is built from the
 method's C step (``Method.c_model``), then driven by fmpy over every test segment, from the same init
 window the job used; the largest difference to the job's predictions at the evaluated rows is the
-verdict, relative to the largest |prediction| of each target (``TOLERANCE``: 1e-9, float64).
+verdict, relative to the largest |prediction| of each target (``TOLERANCE``: 1e-9, float64). A static- or
+window-mode model is exported where its C step reads inputs only (no output feedback, no states): the FMU
+then steps over each test segment's inputs and is compared on the rows the job predicted.
 """
 
 from __future__ import annotations
@@ -99,9 +101,13 @@ class Agreement:
         self.steps += len(rows)
 
 
-def _windows(seg: dict[str, Any]) -> np.ndarray:
+def _windows(seg: dict[str, Any], n_targets: int) -> np.ndarray:
+    """The measured outputs that start a segment: its init window, else its first output (simulation mode); a
+    static or window-mode segment has neither, and a C step without feedback reads none (zeros)."""
     y_init = seg.get("y_init")
-    return y_init if y_init is not None and len(y_init) else np.reshape(seg["y0"], (1, -1))
+    if y_init is not None and len(y_init):
+        return y_init
+    return np.zeros((1, n_targets)) if seg.get("y0") is None else np.reshape(seg["y0"], (1, -1))
 
 
 def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: float = TOLERANCE,
@@ -109,10 +115,10 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
     """Build ``out`` from the stored model ``model_path`` and check it against the run's test predictions."""
     stored: StoredModel = load_model(model_path)
     data = stored.meta["data"]
-    if data["mode"] != "simulation":
-        raise MethodError(f"method {stored.method.name!r}: an FMU steps in time; this model was tested in mode "
-                          f"{data['mode']!r} (export models of simulation-mode runs)")
     model = check_exportable(stored.method, stored.fitted, tuple(data["target_names"]))
+    if data["mode"] != "simulation" and (model.y_lags or model.n_state):
+        raise MethodError(f"method {stored.method.name!r}: its C step runs freely on its own past outputs or states; "
+                          f"this model was tested in mode {data['mode']!r} (export models of simulation-mode runs)")
     tolerance = max(tolerance, model.tolerance or 0.0)  # a model whose solver stops earlier states its own
     if not stored.check_data:
         raise StoreError(f"{model_path}: the stored model holds no test predictions to check an export against")
@@ -139,7 +145,7 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
     try:
         for seg in stored.check_data:
             U = np.asarray(seg["U"], dtype=np.float64)[:, in_cols]
-            window = _windows(seg)[:, out_cols]
+            window = _windows(seg, len(data["target_names"]))[:, out_cols]
             Y, t = simulate_fmu(path, U, window, len(window), float(data["dt"]), timing=timing)
             agreement.add(Y, seg, out_cols)
             if timing:

@@ -115,3 +115,67 @@ def nfir_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
                                         "NF_XN": np.einsum("ij,ij->i", k.X_train, k.X_train),
                                         "NF_YMEAN": np.asarray(k.y_mean, dtype=np.float64).reshape(ny)},
                   y_mean=np.zeros(ny), y_std=np.ones(ny))
+
+
+def _input_lag(name: str, inputs: tuple[str, ...]) -> tuple[int, int] | None:
+    """(input index, lag) of a feature column that is an input: the input itself (static mode) or ``u[t]``,
+    ``u[t-k]`` (window mode, ``samples.lagged_feature_names``); None for any other column (a past output)."""
+    if name in inputs:
+        return inputs.index(name), 0
+    base, bracket, inner = name.rpartition("[")
+    if not bracket or not inner.endswith("]") or base not in inputs:
+        return None
+    inner = inner[:-1]
+    if inner == "t":
+        return inputs.index(base), 0
+    if inner.startswith("t-") and inner[2:].isdigit() and int(inner[2:]) > 0:
+        return inputs.index(base), int(inner[2:])
+    return None
+
+
+def krls_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
+    """``krls``: y = sum_r alpha_r exp(-gamma |s(x) - c_r|^2) + y_mean, s(x) = (x - mean) / scale (the training
+    scaler), the c_r the scaled training rows (or FALKON's Nystroem centres). The features must be inputs at
+    lag 0 (static mode) or at lags the input histories hold; a feature that is a past measured output (window
+    mode) has no place in a free-running FMU: MethodError (one line)."""
+    from enginebench.errors import MethodError
+
+    names, inputs = tuple(fitted.feature_names), tuple(fitted.input_names)
+    if not names:
+        raise MethodError("method 'krls' cannot be exported: this stored model does not name its features (stored "
+                          "before krls had a C step); run the experiment again with --keep-models")
+    where = [_input_lag(n, inputs) for n in names]
+    bad = [n for n, w in zip(names, where) if w is None]
+    if bad:
+        raise MethodError(f"method 'krls' cannot be exported: its feature {bad[0]!r} is not an input but a past "
+                          "measured output (window mode), which an FMU does not receive after its init window; "
+                          "export a static-mode run of krls")
+    used = sorted({i for i, _ in where})  # the inputs read, in the data's order
+    lu = max(lag for _, lag in where) + 1
+    cols = np.array([used.index(i) * lu + lag for i, lag in where], dtype=np.int64)
+    d = len(names)
+    mean = np.zeros(d) if getattr(fitted.scaler, "mean_", None) is None else np.asarray(fitted.scaler.mean_, dtype=np.float64)
+    scale = np.ones(d) if getattr(fitted.scaler, "scale_", None) is None else np.asarray(fitted.scaler.scale_, dtype=np.float64)
+    centres = np.ascontiguousarray(fitted.X_train, dtype=np.float64)
+    alpha = np.asarray(fitted.alpha, dtype=np.float64)
+    n, ny = alpha.shape
+    # the arithmetic of ``gaussian_apply``: |x|^2 - 2 x.c + |c|^2 clipped at 0, exp(-gamma D), times alpha
+    body = f"""    double x[{d}];
+    for (int q = 0; q < {d}; q++) x[q] = (uh[KR_COL[q]] - KR_MEAN[q]) / KR_SCALE[q];
+    double xx = 0.0;
+    for (int q = 0; q < {d}; q++) xx += x[q] * x[q];
+    for (int j = 0; j < NY; j++) ys[j] = 0.0;
+    for (int r = 0; r < {n}; r++) {{
+        double dot = 0.0;
+        for (int q = 0; q < {d}; q++) dot += x[q] * KR_X[r * {d} + q];
+        double dist = dot * -2.0 + xx + KR_XN[r];
+        if (!(dist > 0.0)) dist = 0.0;
+        double w = exp(dist * -{c_double(fitted.gamma)});
+        for (int j = 0; j < NY; j++) ys[j] += w * KR_ALPHA[r * NY + j];
+    }}
+    for (int j = 0; j < NY; j++) ys[j] += KR_YMEAN[j];"""
+    return CModel(method="krls", inputs=tuple(inputs[i] for i in used), targets=targets, u_lags=lu, y_lags=0,
+                  body=body, constants={"KR_COL": cols, "KR_MEAN": mean, "KR_SCALE": scale, "KR_X": centres,
+                                        "KR_ALPHA": alpha, "KR_XN": np.einsum("ij,ij->i", centres, centres),
+                                        "KR_YMEAN": np.asarray(fitted.y_mean, dtype=np.float64).reshape(ny)},
+                  y_mean=np.zeros(ny), y_std=np.ones(ny))
