@@ -221,9 +221,11 @@ def holm(pvalues: object) -> np.ndarray:
 def wilcoxon(a: object, b: object) -> tuple[float, float]:
     """Two-sided Wilcoxon signed-rank test on paired repetitions: `(statistic, pvalue)`.
 
-    Delegates to `scipy.stats.wilcoxon` (zero differences dropped, exact or normal
-    approximation chosen by scipy). All differences zero gives `(nan, 1.0)`
-    instead of scipy's warnings.
+    `scipy.stats.wilcoxon`'s answer (zero differences dropped, exact or normal
+    approximation chosen as scipy chooses): computed here for the exact distribution and the
+    normal approximation, so printing a table imports no scipy; scipy.stats itself only for 13
+    or fewer pairs with ties or zeros (its permutation test). All differences zero gives
+    `(nan, 1.0)` instead of scipy's warnings.
     """
     x, y = _paired(a, b)
     if np.all(x == y):
@@ -233,6 +235,9 @@ def wilcoxon(a: object, b: object) -> tuple[float, float]:
     exact = _wilcoxon_exact(x - y)
     if exact is not None:
         return exact
+    normal = _wilcoxon_normal(x - y)
+    if normal is not None:
+        return normal
     with warnings.catch_warnings():
         # scipy warns when it falls back from the exact distribution (ties/zeros);
         # the fallback is the documented behaviour, not something the user can act on.
@@ -264,6 +269,35 @@ def _wilcoxon_exact(d: np.ndarray) -> tuple[float, float] | None:
     cdf = np.cumsum(counts) / 2.0 ** n
     w = int(round(min(w_plus, top - w_plus)))
     return float(min(w_plus, top - w_plus)), float(min(1.0, 2.0 * cdf[w]))
+
+
+def _wilcoxon_normal(d: np.ndarray) -> tuple[float, float] | None:
+    """The signed-rank test's normal approximation where scipy.stats.wilcoxon (method 'auto') takes it: more than
+    50 differences, or more than 13 with tied magnitudes or zeros: ``(min(W+, W-), p)``; None elsewhere (13 or
+    fewer with ties or zeros: scipy's permutation test decides).
+
+    Zero differences are dropped (Wilcoxon's convention); tied magnitudes share their average rank, and the
+    variance n (n + 1)(2 n + 1) / 24 loses sum(t^3 - t) / 48 over the groups of t ties; no continuity correction;
+    p = 2 P(Z > |W+ - n (n + 1) / 4| / sd) = erfc(|z| / sqrt 2)."""
+    if d.size <= 13:
+        return None
+    nz = d[d != 0.0]
+    n = nz.size
+    if n == 0:
+        return None
+    a = np.abs(nz)
+    order = np.argsort(a, kind="stable")
+    sorted_a = a[order]
+    starts = np.flatnonzero(np.r_[True, sorted_a[1:] != sorted_a[:-1]])
+    sizes = np.diff(np.r_[starts, n])
+    ranks = np.empty(n)
+    ranks[order] = np.repeat(starts + (sizes + 1) / 2.0, sizes)  # the average of ranks start+1 .. start+size
+    w_plus = float(ranks[nz > 0].sum())
+    w_minus = float(ranks[nz < 0].sum())
+    ties = float(np.sum(sizes.astype(float) ** 3 - sizes))
+    sd = math.sqrt((n * (n + 1.0) * (2.0 * n + 1.0) - ties / 2.0) / 24.0)
+    z = (w_plus - n * (n + 1.0) / 4.0) / sd
+    return min(w_plus, w_minus), float(math.erfc(abs(z) / math.sqrt(2.0)))
 
 
 def paired_pvalues(a: object, b: object) -> tuple[float, float, str]:

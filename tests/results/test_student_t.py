@@ -69,3 +69,31 @@ def test_the_paired_t_test_and_the_t_interval_agree_with_scipy():
         mean, low, high = t_interval(a, level=0.95)
         half = scipy_stats.t.ppf(0.975, n - 1) * a.std(ddof=1) / math.sqrt(n)
         assert (low, high) == pytest.approx((a.mean() - half, a.mean() + half), rel=1e-12)
+
+
+@pytest.mark.parametrize("case", ["ties", "zeros", "ties-and-zeros", "over-50"])
+def test_the_wilcoxon_normal_approximation_agrees_with_scipy(case):
+    """Where scipy.stats.wilcoxon takes its normal approximation (more than 13 pairs with tied magnitudes or zero
+    differences, or more than 50 pairs), stats.wilcoxon computes it without scipy: the same statistic and p."""
+    import warnings
+
+    from enginebench.results import stats
+
+    rng = np.random.default_rng(len(case))
+    for n in (14, 20, 30, 51, 120):
+        x = np.round(rng.normal(1.0, 0.3, n), 6)
+        step = {"ties": np.round(rng.normal(0.05, 0.2, n), 1),
+                "zeros": np.where(rng.random(n) < 0.25, 0.0, rng.normal(0.05, 0.2, n)),
+                "ties-and-zeros": np.round(rng.normal(0.0, 0.1, n), 1),
+                "over-50": rng.normal(0.05, 0.3, n)}[case]
+        y = np.round(x + step, 6)
+        if case == "over-50" and n <= 50:
+            continue
+        assert stats._wilcoxon_exact(x - y) is None and stats._wilcoxon_normal(x - y) is not None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ref = scipy_stats.wilcoxon(x, y)
+        stat, p = stats.wilcoxon(x, y)
+        assert stat == ref.statistic and p == pytest.approx(ref.pvalue, rel=1e-12), (case, n)
+    # 13 or fewer pairs with ties: scipy's permutation test, not this approximation
+    assert stats._wilcoxon_normal(np.array([0.1, 0.1, -0.2, 0.3, 0.0, 0.5])) is None
