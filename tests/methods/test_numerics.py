@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import warnings
 
 import numpy as np
@@ -14,7 +15,8 @@ from sklearn.linear_model import LassoLars
 from enginebench.errors import DataError, MethodError
 from enginebench.methods.numerics.derivatives import differentiate, segment_derivatives, window_bounds
 from enginebench.methods.numerics.device import resolve_device
-from enginebench.methods.numerics.tv_admm import kkt_violation, objective
+from enginebench.methods.numerics import tv_admm
+from enginebench.methods.numerics.tv_admm import integral_matrix, kkt_violation, objective, tv_solve
 from enginebench.methods.numerics.integrate import hold_after_exit, integrate
 
 
@@ -91,7 +93,7 @@ def test_tv_admm_reaches_the_exact_minimiser_that_coordinate_descent_stops_short
     assert f_cd > f_ours * (1 + 1e-6)  # the package's route stops short of the optimum here
 
 
-def test_tv_admm_batches_windows_and_columns_like_separate_solves():
+def test_tv_admm_batches_windows_and_columns_like_separate_solves(monkeypatch):
     rng = np.random.default_rng(3)
     t = np.arange(700) * 0.5
     Y = np.c_[np.sin(0.02 * t), np.cos(0.05 * t)] + 0.01 * rng.standard_normal((700, 2))
@@ -101,12 +103,134 @@ def test_tv_admm_batches_windows_and_columns_like_separate_solves():
         np.testing.assert_allclose(both[:, c], one, rtol=0, atol=1e-9)
     # the smoothed signal integrates the derivative from each window's first sample
     assert np.abs(smooth - Y).max() < 0.05
+    # the refinement solves these windows after one ADMM iteration: without it every window stays open
+    monkeypatch.setattr(tv_admm, "REFINE", 0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         _, capped = differentiate(Y, t, 1e-2, window=128, margin=16, max_iter=1, quiet=False)
     assert np.isfinite(capped).all()
     assert len(caught) == 2 * len(window_bounds(700, 128, 16))
     assert "did not reach its optimum (KKT test 0.001) within max_iter=1 iterations" in str(caught[0].message)
+
+
+def _brute_force_tv(b: np.ndarray, alpha: float, dt: float) -> np.ndarray:
+    """The exact minimiser of a tiny window: every sign pattern of the jumps, each a signed least squares.
+
+    The objective restricted to one orthant of the jumps is the quadratic the pattern's signed fit
+    minimises; its minimiser counts only if it keeps the pattern's signs (else that orthant's minimum
+    lies on a face, which a pattern with fewer jumps covers). The global minimum is the best of those.
+    """
+    n = b.size
+    A = integral_matrix(n, dt)
+    AC = np.cumsum(A[:, ::-1], axis=1)[:, ::-1]
+    lam = alpha / dt
+    best, f_best = None, np.inf
+    for pattern in itertools.product((-1.0, 0.0, 1.0), repeat=n - 1):
+        s = np.array(pattern)
+        S = np.r_[0, np.flatnonzero(s) + 1]
+        X = AC[:, S]
+        q = np.r_[0.0, lam * s[s != 0]]
+        theta = np.linalg.lstsq(X.T @ X, X.T @ b - q, rcond=None)[0]
+        if np.any(np.sign(theta[1:]) != s[s != 0]):
+            continue
+        t = np.zeros(n)
+        t[S] = theta
+        u = t[0] + np.r_[0.0, np.cumsum(t[1:])]
+        f = float(objective(u[:, None], b[:, None], A, alpha, dt)[0])
+        if f < f_best:
+            best, f_best = u, f
+    return best
+
+
+def test_tv_solve_equals_the_brute_force_minimiser_of_tiny_windows():
+    rng = np.random.default_rng(7)
+    n, dt = 7, 0.5
+    t = np.arange(n) * dt
+    B = np.column_stack([np.sin(0.7 * t + ph) + 0.3 * (t > 1.2) + 0.05 * rng.standard_normal(n) for ph in range(6)])
+    B -= B[0]
+    for alpha in (1e-3, 1e-2, 5e-2):
+        U, ok = tv_solve(B, alpha, dt)
+        assert ok.all()
+        for w in range(B.shape[1]):
+            ref = _brute_force_tv(B[:, w], alpha, dt)
+            np.testing.assert_allclose(U[:, w], ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+def _lasso_reference(b: np.ndarray, alpha: float, dt: float) -> tuple[float, np.ndarray]:
+    """Minimum and minimiser by scipy's SLSQP on the lasso in the jumps, split into positive and negative parts."""
+    from scipy.optimize import minimize
+
+    n = b.size
+    AC = np.cumsum(integral_matrix(n, dt)[:, ::-1], axis=1)[:, ::-1]
+    lam = alpha / dt
+    scale = np.linalg.norm(AC, axis=0)  # columns scaled to unit norm
+    X = AC / scale
+
+    def f(x):
+        c, p, m = x[0], x[1:n], x[n:]
+        theta = np.r_[c, p - m]
+        r = X @ theta - b
+        g = X.T @ r
+        return 0.5 * r @ r + lam * ((p + m) / scale[1:]).sum(), np.r_[g[0], g[1:] + lam / scale[1:], -g[1:] + lam / scale[1:]]
+
+    bounds = [(None, None)] + [(0.0, None)] * (2 * (n - 1))
+    res = minimize(f, np.zeros(2 * n - 1), jac=True, method="SLSQP", bounds=bounds, options=dict(maxiter=10_000, ftol=1e-16))
+    assert res.success, res.message
+    theta = np.r_[res.x[0], res.x[1:n] - res.x[n:]] / scale
+    return float(res.fun), theta[0] + np.r_[0.0, np.cumsum(theta[1:])]
+
+
+def test_tv_solve_matches_a_scipy_lasso_reference_and_every_accepted_window_passes_the_kkt_test():
+    rng = np.random.default_rng(11)
+    n, dt, alpha = 40, 0.1, 1e-3
+    t = np.arange(n) * dt
+    B = np.column_stack([np.sin(2 * t + ph) + 0.5 * (t > 2.0) * ph + 0.02 * rng.standard_normal(n) for ph in range(2)])
+    B -= B[0]
+    A = integral_matrix(n, dt)
+    U, ok = tv_solve(B, alpha, dt)
+    assert ok.all()
+    assert kkt_violation(U, B, A, alpha, dt).max() <= 1e-6  # accepted at 1e-3, reached to rounding
+    f_ours = objective(U, B, A, alpha, dt)
+    for w in range(B.shape[1]):
+        f_ref, u_ref = _lasso_reference(B[:, w], alpha, dt)
+        assert abs(f_ours[w] - f_ref) <= 1e-12 * f_ref
+        np.testing.assert_allclose(U[:, w], u_ref, rtol=0, atol=1e-5 * np.abs(u_ref).max())
+    # a real-sized batch: only windows that pass the test are reported converged, and those that do pass it
+    y = np.cumsum(rng.standard_normal(4000)) * 0.05 + np.sin(np.arange(4000) * 0.01)
+    W = np.stack([y[i : i + 256] - y[i] for i in range(0, 4000 - 256, 192)], axis=1)
+    for max_iter in (100, 300):
+        U, ok = tv_solve(W, alpha, dt, max_iter=max_iter)
+        assert ok.any()
+        kkt = kkt_violation(U, W, integral_matrix(256, dt), alpha, dt)
+        np.testing.assert_array_equal(ok, kkt <= 1e-3)
+
+
+def test_refinement_reaches_the_optimum_where_sign_polishing_alone_does_not(monkeypatch):
+    # a derivative with three levels (two jumps) plus noise: the polish of an empty support (a constant
+    # u) fails the test; the refinement adds the jumps the gradient points at and drops wrong ones
+    rng = np.random.default_rng(5)
+    n, dt, alpha = 120, 0.1, 1e-2
+    tt = np.arange(n) * dt
+    du = np.where(tt < 4.0, 1.0, np.where(tt < 8.0, -0.5, 0.8))
+    y = np.r_[0.0, np.cumsum((du[1:] + du[:-1]) / 2) * dt] + 1e-3 * rng.standard_normal(n)
+    b = y - y[0]
+    A = integral_matrix(n, dt)
+    AC = np.cumsum(A[:, ::-1], axis=1)[:, ::-1]
+    lam = alpha / dt
+    ref, ok = tv_solve(b[:, None], alpha, dt)
+    assert ok[0]
+    for z in (np.zeros(n - 1), -np.sign(np.diff(ref[:, 0]))):  # nothing known; every sign wrong
+        plain = tv_admm._refined_polish(AC, b, z, lam, steps=0)
+        refined = tv_admm._refined_polish(AC, b, z, lam, steps=50)
+        assert kkt_violation(plain[:, None], b[:, None], A, alpha, dt)[0] > 1.0
+        assert kkt_violation(refined[:, None], b[:, None], A, alpha, dt)[0] <= 1e-6
+        np.testing.assert_allclose(refined, ref[:, 0], rtol=0, atol=1e-9 * np.abs(ref).max())
+    # in the solver: after one polishing pass the refinement accepts windows plain polishing leaves open
+    W = np.column_stack([b + 0.01 * np.sin(k * tt) for k in range(8)])
+    _, ok_refined = tv_solve(W, alpha, dt, max_iter=tv_admm.ROUND)
+    monkeypatch.setattr(tv_admm, "REFINE", 0)
+    _, ok_plain = tv_solve(W, alpha, dt, max_iter=tv_admm.ROUND)
+    assert ok_refined.all() and not ok_plain.all()
 
 
 def test_segment_derivatives_name_the_failing_segment():
