@@ -136,7 +136,10 @@ def _first_row_only(file: Path, frame: pd.DataFrame, names: list[str], shown: di
     if len(frame) < 2:
         return
     for c in names:
-        filled = frame[c].notna().to_numpy()
+        column = frame[c]
+        if pd.isna(column.iloc[0]) or column.iloc[1:1025].notna().any():  # the common case, from a prefix alone
+            continue
+        filled = column.notna().to_numpy()
         if filled[0] and not filled[1:].any():
             col = shown.get(c, c)
             raise DataError(
@@ -144,6 +147,14 @@ def _first_row_only(file: Path, frame: pd.DataFrame, names: list[str], shown: di
                 f"{word} {lines[0]}), like a sampling "
                 "rate written once; remove it from [columns] (an undeclared column is dropped with a note)"
             )
+
+
+def _filled_rows(frame: pd.DataFrame) -> int:
+    """Rows up to the last one holding any value (a frame whose last row holds one is not scanned)."""
+    if not len(frame) or frame.iloc[-1].notna().any():
+        return len(frame)
+    filled = np.flatnonzero(frame.notna().any(axis=1).to_numpy())
+    return int(filled[-1]) + 1 if len(filled) else 0
 
 
 def _source_frame(use: FileUse, table: FileTable, spec: ImportSpec) -> tuple[pd.DataFrame, np.ndarray, dict[str, str]]:
@@ -161,8 +172,7 @@ def _source_frame(use: FileUse, table: FileTable, spec: ImportSpec) -> tuple[pd.
     frame = pd.DataFrame(cols)
     # Blank cells at the end carry nothing (blank lines, a shorter record of a wide file);
     # a blank cell inside is reported with its line.
-    filled = np.flatnonzero(frame.notna().any(axis=1).to_numpy())
-    n = filled[-1] + 1 if len(filled) else 0
+    n = _filled_rows(frame)
     frame = frame.iloc[:n].reset_index(drop=True)
     lines = table.lines[:n]
     if use.record is None:

@@ -220,67 +220,13 @@ def _field_position(spec: ImportSpec, name: str) -> str:
     return str(at[0]) if at else "?"
 
 
-ARROW_MIN_BYTES = 1 << 20
-"""Files at least this large are parsed by pyarrow's CSV reader first (``_parse_csv_arrow``)."""
-
-
-def _parse_csv_arrow(file: Path, delim: str, n_fields: int, text_pos: list[int], *,
-                     header_row: bool) -> pd.DataFrame | None:
-    """``_parse_csv``'s frame read by pyarrow's CSV reader (one thread: its threads cost more CPU than they
-    save on a shared machine), or None where pandas must read the file: anything pyarrow refuses (a row
-    with another number of fields, a blank line, bad UTF-8), a column that is neither numbers nor text
-    asked for (pandas then keeps the cells as text for ``parse_numbers`` to report with their line), or
-    the whitespace delimiter. Numbers are parsed correctly rounded, as pandas' parser does: the frames
-    are equal value for value (``tests/datasets/test_arrow_csv.py``)."""
-    import pyarrow.csv as pacsv
-    from pandas._libs.parsers import STR_NA_VALUES  # pandas' own missing-value texts: both readers agree
-
-    if delim == WHITESPACE or len(delim) != 1:
-        return None
-    names = [f"c{i}" for i in range(n_fields)]
-    text = {names[i] for i in text_pos}
-    try:
-        table = pacsv.read_csv(
-            file,
-            read_options=pacsv.ReadOptions(column_names=names, skip_rows=1 if header_row else 0, use_threads=False,
-                                           block_size=1 << 24, encoding="utf8"),
-            parse_options=pacsv.ParseOptions(delimiter=delim, ignore_empty_lines=False),
-            convert_options=pacsv.ConvertOptions(column_types={n: pa.string() for n in text}, timestamp_parsers=[],
-                                                 null_values=sorted(STR_NA_VALUES), strings_can_be_null=True,
-                                                 true_values=[], false_values=[],
-                                                 quoted_strings_can_be_null=True),
-        )
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, UnicodeDecodeError, OSError):
-        return None
-    if len(table) == 0:
-        return None
-    for k, name in enumerate(names):
-        kind = table.schema.field(k).type
-        if name in text or pa.types.is_floating(kind) or pa.types.is_integer(kind) and not table.column(k).null_count:
-            continue
-        if pa.types.is_null(kind) or pa.types.is_integer(kind):  # blank cells: NaN in a float column, as pandas
-            table = table.set_column(k, name, table.column(k).cast(pa.float64()))
-        else:
-            return None
-    # one block per column, each freed from Arrow as it is converted: no copy into a 2-D block
-    return table.to_pandas(split_blocks=True, self_destruct=True)
-
-
 def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, header_row: bool = True) -> pd.DataFrame:
     """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
 
     Columns holding anything that is not a number come back as text, which
-    :func:`validate.parse_numbers` then reports with its line. A file of ``ARROW_MIN_BYTES`` or more is read by
-    pyarrow's CSV reader when it can (``_parse_csv_arrow``), else by pandas.
+    :func:`validate.parse_numbers` then reports with its line. pandas' C parser reads every file: pyarrow's
+    CSV reader, tried for large files, cost 1.4x its CPU on one thread (docs/benchmarks.md, long recordings).
     """
-    try:
-        large = file.stat().st_size >= ARROW_MIN_BYTES
-    except OSError:
-        large = False
-    if large:
-        fast = _parse_csv_arrow(file, delim, n_fields, text_pos, header_row=header_row)
-        if fast is not None:
-            return fast
     try:
         return pd.read_csv(
             file,

@@ -138,6 +138,8 @@ def parse_numbers(
     values: pd.Series, *, source: str, column: str, lines: np.ndarray, word: str = "line"
 ) -> np.ndarray:
     """Cells as float64 (missing cells become NaN); text that is not a number raises DataError."""
+    if values.dtype == np.float64:  # parsed as numbers already: nothing can be text
+        return values.to_numpy(dtype=float, copy=False)
     x = pd.to_numeric(values, errors="coerce")
     x = np.asarray(pd.Series(x).to_numpy(dtype=float, na_value=np.nan), dtype=float)
     bad = np.isnan(x) & values.notna().to_numpy()
@@ -272,7 +274,7 @@ def parse_time(
 
 # -- whole-table checks -------------------------------------------------------------------
 def check_not_constant(
-    frame: pd.DataFrame,
+    frame: pd.DataFrame | Mapping[str, np.ndarray],
     schema: Schema,
     *,
     source: str,
@@ -286,7 +288,7 @@ def check_not_constant(
     for c in schema.columns:
         if c.role not in ("input", "output"):
             continue
-        x = frame[c.name].to_numpy(dtype=float)
+        x = np.asarray(frame[c.name], dtype=float)
         if len(x) and np.nanmin(x) == np.nanmax(x):
             raise DataError(
                 f"{source}, column {(shown or {}).get(c.name, c.name)!r}: constant value {_num(x[0])} over {scope}; a constant {c.role} "
@@ -535,7 +537,7 @@ def validate_frame(
         time = (ticks, scale)
     values, labels = _read_columns(frame, schema, source=source, lines=ln, word=word, shown=shown)
     if check_constant:
-        check_not_constant(pd.DataFrame(values), schema, source=source, shown=shown)
+        check_not_constant(values, schema, source=source, shown=shown)
 
     rows = _group_rows(seg_raw, time, dt, lines=ln, time_column=frame[time_col] if time_col is not None else None)
     step = _check_steps(rows, dt, gap_tolerance, dt_tolerance, source=source, column=time_col, word=word)
