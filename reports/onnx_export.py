@@ -76,7 +76,7 @@ def export_onnx(model_path: Path, out: Path, *, timing: bool = False, run_id: st
         agreement, times = Agreement(), []
         for seg in stored.check_data:
             U = np.asarray(seg["U"], dtype=np.float64)[:, in_cols]
-            window = _windows(seg)[:, out_cols]
+            window = _windows(seg, len(data["target_names"]))[:, out_cols]
             Y, t = runner.simulate(U, window, timing=timing)
             agreement.add(Y, seg, out_cols)
             times.append(t)
