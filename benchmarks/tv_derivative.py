@@ -14,7 +14,7 @@ The gengine2 columns need ``enginebench datasets import bosch-gengine2 --from DI
 (``/work/shared/data/bosch-gengine2`` on the dev machine); without it they are skipped
 with a message and only the synthetic signal runs.
 
-Usage: python benchmarks/tv_derivative.py [--columns nox,t_cat] [--samples 30000]
+Usage: python benchmarks/tv_derivative.py [--columns nox,t_cat] [--samples 60000]
        [--max-iter 20000] [--threads 1] [--no-synthetic]
 """
 
@@ -142,7 +142,7 @@ def compare(name: str, B: np.ndarray, max_iter: int) -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--columns", default="nox,t_cat", help="gengine2 columns, comma-separated")
-    ap.add_argument("--samples", type=int, default=30_000, help="first samples of each column")
+    ap.add_argument("--samples", type=int, default=60_000, help="first samples of each column")
     ap.add_argument("--max-iter", type=int, default=20_000)
     ap.add_argument("--threads", type=int, default=1, help="BLAS threads")
     ap.add_argument("--no-synthetic", action="store_true")
