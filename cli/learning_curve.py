@@ -48,7 +48,7 @@ def learning_curve(experiment: str, months: str, methods: str, repeats, rows: st
     and plot); the table prints the test metric's mean and Student-t 95% interval per
     amount, and a PNG plot is written when matplotlib is installed.
     """
-    from enginebench.cli.run import echo_resume_hint, stop_on_sigterm
+    from enginebench.cli.interrupt import echo_resume_hint, stop_on_sigterm
     from enginebench.experiments.learning_curve import parse_months, run_learning_curve
     from enginebench.experiments.spec import load_spec
     from enginebench.results.store import RunStore

@@ -3,18 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import click
 from rich.console import Console
 
+from enginebench.cli.interrupt import echo_resume_hint, stop_on_sigterm
 from enginebench.cli.options import load_plugins, plugin_option, store_option
 from enginebench.cli.progress import JobProgress
 from enginebench.experiments.executors import EXECUTORS
-
-if TYPE_CHECKING:
-    from enginebench.results.run_folder import Run
-    from enginebench.results.store import RunStore
 
 
 @click.command()
@@ -138,27 +134,6 @@ def run(experiment, resume_ref, repeats, methods, seed, train_size, workers, exe
     if dead:
         # exit 1, not 2: the input was fine and the run is stored, but a method produced no result at all
         raise SystemExit(f"error: every job of {', '.join(dead)} failed (reasons above); run {result.run.id} is stored")
-
-
-def stop_on_sigterm() -> None:
-    """Turn SIGTERM (from a scheduler or `timeout`) into SystemExit, so that the run is recorded as interrupted."""
-    import signal
-
-    def stop(signum: int, frame: object) -> None:
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, stop)
-
-
-def echo_resume_hint(store: RunStore, known: set[str], resume: Run | None = None) -> None:
-    """After an interruption: how many jobs of the run (``resume``, else the one not in ``known``) are stored and
-    the command that finishes it (on stderr; nothing when no run was created yet)."""
-    stopped = resume or next((r for r in reversed(store.runs()) if r.id not in known), None)
-    if stopped is None:
-        return
-    info = stopped.info()
-    click.echo(f"interrupted: {info.get('finished_jobs', '?')} of {info.get('n_jobs', '?')} jobs of run "
-               f"{stopped.id} are stored; finish it with `enginebench run --resume {stopped.id}`", err=True)
 
 
 def all_failed_methods(metrics) -> list[str]:

@@ -42,8 +42,6 @@ KNOWN_CIRCLES: list[set[str]] = [
      "enginebench.datasets.marine_diesel.pm"},
     # the executors hand --executor slurm to slurm.py, whose tasks set up their worker as the local pool does
     {"enginebench.experiments.executors", "enginebench.experiments.slurm"},
-    # `run` prints a learning curve's end, `learning-curve` reuses run's resume hint and SIGTERM handling
-    {"enginebench.cli.learning_curve", "enginebench.cli.run"},
 ]
 """Circles that stand today, each through an import inside a function; the list may only shrink."""
 
