@@ -32,7 +32,8 @@ import time
 from collections import defaultdict
 
 from enginebench.experiments.engine import plan
-from enginebench.experiments.executors import _limit_threads, default_workers
+from enginebench.experiments.executor_base import limit_threads
+from enginebench.experiments.executors import default_workers
 from enginebench.experiments.jobs import run_job
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import load_spec
@@ -104,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="BLAS threads (default: cores // workers, what a run's worker gets)")
     args = parser.parse_args(argv)
     threads = args.threads or max(1, default_workers() // max(1, args.workers))
-    _limit_threads(threads)  # as a run's worker process does (BLAS, OpenMP and torch)
+    limit_threads(threads)  # as a run's worker process does (BLAS, OpenMP and torch)
 
     spec = load_spec(args.experiment)
     if args.repeats:

@@ -14,7 +14,6 @@ import multiprocessing as mp
 import os
 import pickle
 import socket
-import sys
 import threading
 import time
 import uuid
@@ -23,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
 
-from enginebench.errors import EngineBenchError
+from enginebench.experiments.executor_base import ExecutorError, limit_threads, load_shipped_plugins
 
 if TYPE_CHECKING:  # imported where used: the CLI reads EXECUTORS without loading the job machinery
     from enginebench.experiments.jobs import Context, Job
@@ -52,7 +51,7 @@ def _init_worker(blob: bytes, plugins: tuple[str, ...], threads: int, parent: in
     global _CTX
     if parent is not None:
         _exit_with_parent(parent)
-    _limit_threads(threads)
+    limit_threads(threads)
     if plugins:
         from enginebench.registry import load_plugin_file
 
@@ -130,10 +129,6 @@ WORKER_WAIT_S = 120.0
 DASK_MISSING = 'the dask executor needs dask.distributed: pip install "enginebench[dask]"'
 
 
-class ExecutorError(EngineBenchError):
-    """An executor that cannot be used as asked (a missing package, an unreachable scheduler)."""
-
-
 _DASK_CTX: dict[str, Context] = {}
 _DASK_LOCK = threading.Lock()
 
@@ -166,60 +161,12 @@ def _dask_context(payload: _Payload) -> Context:
             return ctx
         if payload.origin != (socket.gethostname(), os.getpid()):
             if payload.threads:
-                _limit_threads(payload.threads)
-            _load_shipped_plugins(payload.plugin_sources)
+                limit_threads(payload.threads)
+            load_shipped_plugins(payload.plugin_sources)
         ctx = pickle.loads(payload.blob)
         _DASK_CTX.clear()  # one run at a time per worker: drop a previous run's context
         _DASK_CTX[payload.token] = ctx
         return ctx
-
-
-def _limit_threads(threads: int) -> None:
-    """At most ``threads`` BLAS/OpenMP/torch threads in this worker process.
-
-    threadpoolctl limits only the libraries already loaded, and numpy and scipy each bring
-    their own OpenBLAS: both are imported here rather than relied on being imported by
-    then. (Left at the core count, scipy's LAPACK in two workers on two cores
-    oversubscribes them; OpenBLAS's thread hand-offs then made one tridiagonalisation
-    10-50x slower in a measurement.)
-    """
-    import numpy  # noqa: F401
-    import scipy.linalg  # noqa: F401
-    import sklearn.metrics.pairwise  # noqa: F401  (its OpenMP runtime)
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(threads)
-    try:
-        import torch
-
-        torch.set_num_threads(threads)
-    except ImportError:  # pragma: no cover - torch is a core dependency
-        pass
-
-
-def _load_shipped_plugins(sources: tuple[tuple[str, str], ...]) -> None:
-    """Load plugin files on a worker: the original path when it holds the same text, else a shipped copy.
-
-    Cluster nodes need not share the parent's file system, so the parent ships each file's
-    text; the copy keeps the file name, hence the module name that pickled classes refer to.
-    """
-    import tempfile
-
-    from enginebench.registry import load_plugin_file
-
-    for path, text in sources:
-        original = Path(path)
-        if f"enginebench_plugin_{original.stem}" in sys.modules:
-            continue
-        try:
-            same = original.is_file() and original.read_text(encoding="utf-8") == text
-        except OSError:
-            same = False
-        if not same:
-            folder = Path(tempfile.mkdtemp(prefix="enginebench-plugins-"))
-            original = folder / original.name
-            original.write_text(text, encoding="utf-8")
-        load_plugin_file(original)
 
 
 def _dask_work(payload: _Payload, job: Job) -> tuple[Job, Any]:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
 
+from enginebench.experiments.executor_base import ExecutorError, limit_threads, load_shipped_plugins
 from enginebench.experiments.slurm_settings import SLURM, resources
 from enginebench.results.atomic import atomic_write_bytes
 
@@ -104,11 +105,9 @@ class _Task:
             return str(out)
         ctx = _TASK_CTX.get(self.context_file)
         if ctx is None:
-            from enginebench.experiments.executors import _limit_threads, _load_shipped_plugins
-
             if self.threads:  # 0: a task in the driver's own process (cluster "debug") leaves its limits alone
-                _limit_threads(self.threads)
-            _load_shipped_plugins(self.plugin_sources)
+                limit_threads(self.threads)
+            load_shipped_plugins(self.plugin_sources)
             with open(self.context_file, "rb") as fh:
                 ctx = pickle.load(fh)
             _TASK_CTX.clear()
@@ -138,8 +137,6 @@ def _read_result(path: Path) -> tuple["Job", Any] | None:
 # -- the driver --------------------------------------------------------------------------------
 
 def check_submitit() -> None:
-    from enginebench.experiments.executors import ExecutorError
-
     import importlib.util
 
     if importlib.util.find_spec("submitit") is None:
@@ -158,8 +155,6 @@ def run_slurm(
 
     ``options`` (``--slurm KEY=VALUE``) override the top-level keys of the spec's ``[slurm]`` table.
     """
-    from enginebench.experiments.executors import ExecutorError
-
     jobs = list(jobs)
     if not jobs:
         return

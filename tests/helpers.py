@@ -72,9 +72,9 @@ def thread_limits_after_worker_setup(threads: int) -> list[tuple[str, int]]:
     import torch
     from threadpoolctl import threadpool_info
 
-    from enginebench.experiments.executors import _limit_threads
+    from enginebench.experiments.executor_base import limit_threads
 
-    _limit_threads(threads)
+    limit_threads(threads)
     return [(info["filepath"], info["num_threads"]) for info in threadpool_info()] + [("torch", torch.get_num_threads())]
 
 

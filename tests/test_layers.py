@@ -40,8 +40,6 @@ KNOWN_CIRCLES: list[set[str]] = [
     # and builds its C step (c_step.py, which reads pm's constants) when an export asks for it
     {"enginebench.datasets.marine_diesel.calibration", "enginebench.datasets.marine_diesel.c_step",
      "enginebench.datasets.marine_diesel.pm"},
-    # the executors hand --executor slurm to slurm.py, whose tasks set up their worker as the local pool does
-    {"enginebench.experiments.executors", "enginebench.experiments.slurm"},
 ]
 """Circles that stand today, each through an import inside a function; the list may only shrink."""
 

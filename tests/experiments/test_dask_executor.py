@@ -18,7 +18,7 @@ from click.testing import CliRunner
 distributed = pytest.importorskip("distributed")
 
 from enginebench.cli.main import cli  # noqa: E402
-from enginebench.experiments import executors  # noqa: E402
+from enginebench.experiments import executor_base, executors  # noqa: E402
 from enginebench.experiments.runner import run_experiment  # noqa: E402
 from enginebench.results.store import RunStore  # noqa: E402
 from helpers import interrupt_after, make_toy, toy_spec  # noqa: E402
@@ -149,7 +149,7 @@ def test_shipped_plugin_copy_is_used_where_the_file_is_missing(tmp_path, monkeyp
     """A cluster node without the parent's file system gets the file's text and loads that."""
     monkeypatch.delitem(sys.modules, "enginebench_plugin_gone_plugin", raising=False)
     missing = tmp_path / "elsewhere" / "gone_plugin.py"
-    executors._load_shipped_plugins(((str(missing), PLUGIN.replace("dask-median", "shipped-median")),))
+    executor_base.load_shipped_plugins(((str(missing), PLUGIN.replace("dask-median", "shipped-median")),))
     module = sys.modules["enginebench_plugin_gone_plugin"]
     assert module.Median.name == "shipped-median" and not missing.exists()
     from enginebench import registry
