@@ -23,7 +23,8 @@ import numpy as np
 
 from enginebench.datasets.marine_diesel.calibration import seed_fat_params
 from enginebench.datasets.marine_diesel.generate import SIZES, generate
-from enginebench.datasets.marine_diesel.pm import RACK, SPEED, MarineDieselPM, simulate_frame
+from enginebench.datasets.marine_diesel.physical_model import MarineDieselPM
+from enginebench.datasets.marine_diesel.pm import RACK, SPEED, simulate_frame
 
 
 def _line(label: str, simulated_s: float, samples: int, wall_s: float) -> str:

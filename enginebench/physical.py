@@ -34,7 +34,7 @@ class PhysicalModel(Protocol):
 _KNOWN: dict[str, str] = {
     # name -> "module:factory"; modules are imported only when a dataset asks for them
     "gas-turbine-tat": "enginebench.datasets.gas_turbine.physics:TATExpansionModel",
-    "marine-diesel-pm": "enginebench.datasets.marine_diesel.pm:MarineDieselPM",
+    "marine-diesel-pm": "enginebench.datasets.marine_diesel.physical_model:MarineDieselPM",
     "fmu": "enginebench.datasets.fmu:FMUPhysicalModel",  # an import spec's [physical_model] FMU (meta["fmu"])
 }
 

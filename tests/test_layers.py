@@ -36,10 +36,6 @@ KNOWN_CIRCLES: list[set[str]] = [
     # the catalog loads an import spec, whose [physical_model] FMU calibration loads a dataset by name
     {"enginebench.datasets.catalog", "enginebench.datasets.importer", "enginebench.datasets.fmu",
      "enginebench.datasets.fmu_calibrate"},
-    # the marine physical model calibrates itself to the factory test on first use
-    # and builds its C step (c_step.py, which reads pm's constants) when an export asks for it
-    {"enginebench.datasets.marine_diesel.calibration", "enginebench.datasets.marine_diesel.c_step",
-     "enginebench.datasets.marine_diesel.pm"},
 ]
 """Circles that stand today, each through an import inside a function; the list may only shrink."""
 

@@ -10,8 +10,9 @@ from scipy.optimize import brentq
 from enginebench.datasets.marine_diesel import constants as C
 from enginebench.datasets.marine_diesel.calibration import calibrate_to_fat, fat_report, seed_fat_params
 from enginebench.datasets.marine_diesel.fat import QUANTITIES, load_fat, simulator_fat
+from enginebench.datasets.marine_diesel.physical_model import MarineDieselPM
 from enginebench.datasets.marine_diesel.pm import (
-    DEFAULT_PARAMS, RACK, SPEED, T_INLET, T_OUTLET, MarineDieselPM, _balance, simulate_runs,
+    DEFAULT_PARAMS, RACK, SPEED, T_INLET, T_OUTLET, _balance, simulate_runs,
     solve_charge_pressure, steady_outputs,
 )
 from enginebench.datasets.marine_diesel.sensors import first_order_lag

@@ -14,7 +14,8 @@ from enginebench.datasets.dataset import TIME
 from enginebench.datasets.io import write_dataset
 from enginebench.datasets.marine_diesel import generate
 from enginebench.datasets.marine_diesel.calibration import seed_fat_params, simulator_fat_params
-from enginebench.datasets.marine_diesel.pm import MarineDieselPM, simulate_frame
+from enginebench.datasets.marine_diesel.physical_model import MarineDieselPM
+from enginebench.datasets.marine_diesel.pm import simulate_frame
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import DataError, SpecError
 from enginebench.experiments.engine import physical_model_for
