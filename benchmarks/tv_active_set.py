@@ -14,7 +14,7 @@ The gengine2 columns need ``enginebench datasets import bosch-gengine2 --from DI
 (``/work/shared/data/bosch-gengine2`` on the dev machine); without it they are skipped
 with a message and only the synthetic signal runs.
 
-Usage: python benchmarks/tv_derivative.py [--columns nox,t_cat] [--samples 60000]
+Usage: python benchmarks/tv_active_set.py [--columns nox,t_cat] [--samples 60000]
        [--max-iter 20000] [--threads 1] [--no-synthetic]
 """
 
