@@ -116,8 +116,9 @@ def calibrate_pm(fat_ref: str, dataset: str, on: str, settle: float, seed: int, 
 def calibrate_fmu(dataset: str, fat_ref: str, on: str, settle: float, output) -> None:
     """``calibrate pm`` for a dataset whose physical model is an FMU."""
     from enginebench.datasets import fmu_calibrate
+    from enginebench.datasets.fmu_dataset import dataset_model
 
-    model, ds = fmu_calibrate.dataset_model(dataset, FAT_DATASETS)
+    model, ds = dataset_model(dataset, FAT_DATASETS)
     if on == "train":
         segments, what = fmu_calibrate.dataset_segments(ds, model)
         fit, source = fmu_calibrate.calibrate_to_rows(model, segments), f"training rows: {what}"

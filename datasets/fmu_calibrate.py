@@ -204,18 +204,3 @@ def format_fit(fit: Fit) -> str:
                  f"({fit.n_residuals} residuals, {fit.nfev} evaluations)")
     return "\n".join(lines) + "\n"
 
-
-def dataset_model(ref: str, fat_datasets: Sequence[str] = ()) -> tuple[Any, Any]:
-    """The FMU physical model of a dataset given by its .toml import spec or .parquet file, and the dataset."""
-    from enginebench.datasets import catalog
-    from enginebench.datasets.fmu import NAME, FMUPhysicalModel
-
-    if Path(ref).suffix not in (".toml", ".parquet"):
-        raise DataError(f"dataset {ref!r} has no FAT-calibrated physical model; FAT calibration is available for: "
-                        f"{', '.join(fat_datasets)}, and for a dataset whose import spec names an FMU (give its "
-                        ".toml spec or .parquet file)")
-    ds = catalog.load(ref)
-    if ds.meta.get("physical_model") != NAME:
-        raise DataError(f"dataset {ref!r} has no FMU physical model; name one in its import spec's "
-                        "[physical_model] table (docs/data.md)")
-    return FMUPhysicalModel.for_dataset(ds.meta), ds
