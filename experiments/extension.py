@@ -15,8 +15,9 @@ The step is the grid's own spacing at that edge: a ratio where the grid is log-s
 difference otherwise, whole numbers where the grid holds whole numbers. It doubles each
 time the same edge is pushed again, so ten decades past a grid take a handful of rounds,
 and the last step stops at the bound. Once the best value is inside, a gap the doubled
-steps left next to it is halved until it is no wider than the grid's median spacing (a bracket
-closed in on, as in a line search). The search ends when no selected value sits at an
+steps left next to it is halved until it is no wider than the grid's median spacing, or on a
+linear axis of values >= 0 than a fifth of the best value (:data:`RELATIVE_RESOLUTION`: a bracket
+closed in on, as in a line search, to the precision such a value needs). The search ends when no selected value sits at an
 extendable edge or next to a wide gap, when a value has reached its bound (the warning then
 names the bound, not "widen the grid") or after ``MAX_ROUNDS`` rounds.
 """
@@ -33,6 +34,12 @@ from enginebench.experiments.search import infer_range
 
 MAX_ROUNDS = 16
 """Most rounds of extension in one selection (each scores a handful of points on every resample)."""
+
+RELATIVE_RESOLUTION = 0.2
+"""On a linear axis of values >= 0 (a horizon in seconds, a count), gaps next to the best value are not refined
+below this fraction of it: nfir's and boost-fir's data-derived horizon grids may be spaced 0.1 s near zero, and
+refining down to that spacing around a best horizon of 2.1 s took a boosted-trees selection through six more
+rounds (2.5, 1.9, 2.3, 2.2, 2.0 s ...) whose fold-mean scores differed by at most 0.2 %."""
 
 Bounds = Mapping[str, tuple[float | None, float | None]]
 Evaluate = Callable[[list[dict[str, Any]]], np.ndarray]
@@ -70,7 +77,10 @@ class Axis:
         x = self._coordinates(self.values)
         gaps = [(x[i] - x[i - 1], i - 1) if i > 0 else (0.0, -1), (x[i + 1] - x[i], i + 1) if i + 1 < len(x) else (0.0, -1)]
         gap, j = max(gaps)
-        if gap <= self.step * (1 + 1e-9) or j < 0:
+        fine = self.step
+        if not self.log and self.values[0] >= 0:  # a length or count: known to a fraction of itself is enough
+            fine = max(fine, RELATIVE_RESOLUTION * abs(value))
+        if gap <= fine * (1 + 1e-9) or j < 0:
             return None
         mid = (x[i] + x[j]) / 2
         new = 10.0 ** mid if self.log else mid

@@ -200,3 +200,29 @@ def test_gaps_are_refined_down_to_the_grids_median_spacing_not_its_finest():
     assert new is not None and abs(new - np.sqrt(32.0)) < 1e-9
     axis.insert(new)
     assert axis.refinement(new) is None  # 0.15-decade gaps either side: done
+
+
+def test_a_linear_axis_of_lengths_is_refined_to_a_fifth_of_the_best_value_not_to_its_finest_spacing():
+    """Horizons from 0 s (a linear axis: 0 is no log value) with a 0.1 s grid near zero: around a best horizon of
+    2.1 s the 0.8 s gaps are halved once (1.7 and 2.5 s), then left: 0.4 s <= a fifth of 2.1 s (0.42 s), where the
+    grid's median spacing (0.1 s) would have gone on to 1.9, 2.3, 2.2, 2.0 s."""
+    axis = Axis("horizon", [0.1, 0.2, 0.3], log=False, whole=False, low=0.0, high=100.0)
+    assert abs(axis.step - 0.1) < 1e-12
+    for v in (0.0, 0.5, 1.3, 2.1, 2.9, 4.5):
+        axis.insert(v)
+    left = axis.refinement(2.1)
+    assert left is not None and abs(left - 1.7) < 1e-9
+    axis.insert(left)
+    right = axis.refinement(2.1)
+    assert right is not None and abs(right - 2.5) < 1e-9
+    axis.insert(right)
+    assert axis.refinement(2.1) is None
+    # a linear axis reaching below zero keeps the grid's spacing as its resolution
+    signed = Axis("offset", [-0.3, -0.2, -0.1], log=False, whole=False, low=-10.0, high=10.0)
+    for v in (0.0, 1.3, 2.1, 2.9):
+        signed.insert(v)
+    assert abs(signed.refinement(2.1) - 1.7) < 1e-9
+    signed.insert(1.7)
+    assert abs(signed.refinement(2.1) - 2.5) < 1e-9
+    signed.insert(2.5)
+    assert signed.refinement(2.1) is not None  # 0.4 > 0.1: refined further

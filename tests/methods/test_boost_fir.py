@@ -61,3 +61,20 @@ def test_bad_hyperparameters_are_one_line():
         BoostFIR().fit(train, {}, np.random.default_rng(0))
     with pytest.raises(MethodError, match="learning_rate"):
         BoostFIR(learning_rate=0)
+
+
+def test_the_memory_estimate_is_computed_once_per_training_set_when_fold_fits_alternate(monkeypatch):
+    """Selection fits each horizon on every fold's training set in turn: the estimate of each set is kept, so
+    three training sets fitted at two horizons each are estimated three times, and the estimates are the ones a
+    fresh method computes."""
+    import enginebench.methods.input_history as history
+
+    calls = []
+    real = history.estimate_memory
+    monkeypatch.setattr(history, "estimate_memory", lambda *a, **k: calls.append(1) or real(*a, **k))
+    sets = [sim_samples(linear_raw(2, 120 + 10 * k, seed=k)) for k in range(3)]
+    m = BoostFIR(max_iter=5)
+    fits = [m.fit(train, {"horizon": h}, np.random.default_rng(0)) for h in (1.0, 2.0) for train in sets]
+    assert len(calls) == 3
+    for fitted, train in zip(fits, sets * 2):
+        assert fitted.memory == BoostFIR().memory(train)
