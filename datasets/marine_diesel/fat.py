@@ -1,6 +1,6 @@
 """Factory-acceptance-test (FAT) points: the egt-hybrid paper's fixture and FAT on the true engine.
 
-``load_fat`` reads ``fat_seed000.csv``: seed 000's Table 4 with the paper's PM values
+``load_fat`` reads ``fat_seed000.csv``: egt-hybrid's Table 4 with the paper's PM values
 and percentage errors, columns named by physics (the paper's labels are in the file's
 comment lines: its "after turbine" block is the hotter one, so it is the turbine
 inlet). ``simulator_fat`` runs the generator's true engine (the same engine instance

@@ -1,4 +1,4 @@
-"""Cascades: upstream model of an intermediate -> downstream model of the target (seed 003's WF -> TRQ)."""
+"""Cascades: upstream model of an intermediate -> downstream model of the target (turboshaft-moe's WF -> TRQ)."""
 
 from __future__ import annotations
 
@@ -230,7 +230,7 @@ def test_moe_nfir_constrains_the_intermediate_positive_and_exposes_gates(interna
     preds = c.predict(fitted, test.without_targets())
     assert all(np.isfinite(p).all() and p.shape == (len(s), 1) for p, s in zip(preds, test.segments))
     signs = c.describe(fitted)["downstream"]["signs"]
-    assert signs == {"dy/dt <- y": "-", "dy/dt <- w": "+"}  # seed 003: own state negative, fuel positive
+    assert signs == {"dy/dt <- y": "-", "dy/dt <- w": "+"}  # turboshaft-moe: own state negative, fuel positive
     down, down_fitted, down_data = c.downstream_view(fitted, test.without_targets())
     assert down_data.input_names == ("u1", "u2", "w")
     gates = gate_weights(down_fitted, down_data)

@@ -374,7 +374,7 @@ def lead_samples(seed: int, n_seg: int, n: int):
 
 
 def test_input_derivatives_let_the_mixture_model_a_lead():
-    """Without du/dt among the regressors a lead cannot be represented (seed 003's COL' term)."""
+    """Without du/dt among the regressors a lead cannot be represented (turboshaft-moe's COL' term)."""
     train, test = lead_samples(1, 3, 400), lead_samples(2, 2, 400)
     scores = {}
     for derivs in (None, {"u": 1}):

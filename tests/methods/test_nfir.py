@@ -303,7 +303,7 @@ def _selected_test_rmse(m: NFIR, train, val, test) -> float:
 
 
 def test_a_record_sampled_every_few_seconds_keeps_its_memory():
-    """The reported failure: at dt = 5 s seed 003's horizons (2-8 s) are one sample, so NFIR was a static map and no
+    """The reported failure: at dt = 5 s turboshaft-moe's horizons (2-8 s) are one sample, so NFIR was a static map and no
     better than the training mean. The derived horizons see the system's 30-sample memory."""
     sim = make_samples(first_order_dataset(10.0, 5.0, n_seg=5, n=300), ["y"], "simulation")
     edges = np.cumsum([len(s) for s in sim.segments])
