@@ -27,6 +27,15 @@ outputs, or turning non-finite, is flagged and held at its last in-envelope valu
 Selection: the toolkit scores ``predict_grid``'s free runs on validation blocks, so
 orders and kernel hyperparameters are chosen on simulation error, not one-step error.
 
+Several targets (``joint_targets = true``): one job fits one model per target on the same
+standardisation and folds, and every target's candidates run in one batched free run (one
+time loop for all outputs instead of one per output job); each target's model is the one a
+job of that target alone fits at the same point (exactly, with the exact solver; with
+Nystroem centres the centres are drawn per target from the same generator in turn), and one
+point (lags, gamma, lambda) is selected for all targets on their scale-free summed error.
+Each output's kernel reads its own lags and the inputs; outputs do not read each other's
+(a MIMO NARX with cross-output regressors is not offered).
+
 Defaults derived from the data:
 - lags (na = nb, in samples) from {2, 4, 8, 16, 32, 64} where the training data carry them
   (``freerun.derived_orders``: at most a quarter of the shortest training segment and a
@@ -70,6 +79,7 @@ class NARX(GivenOrders, Method):
     name = NAME
     family = "data-driven"
     modes = frozenset({"simulation"})
+    joint_targets = True  # one model per target, every target's candidates in one free-run batch (module docstring)
     summary = ("kernel NARX: linear ARX part + Gaussian kernel on lagged outputs and inputs (Nystroem for large "
                "sets), selected and predicted in free run")
 

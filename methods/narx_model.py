@@ -124,7 +124,10 @@ class Standardised:
 def standardise(traj: list[Trajectory], envelope: float) -> Standardised:
     Y = np.vstack([t.Y for t in traj])
     U = np.vstack([t.U for t in traj])
-    y_mean, y_std = Y.mean(axis=0), Y.std(axis=0)
+    # column by column: numpy sums a contiguous column pairwise but the columns of a wider array row by row, so a
+    # target's scaling (and with it its model) would change in the last bits with the other targets beside it
+    y_mean = np.array([np.ascontiguousarray(Y[:, j]).mean() for j in range(Y.shape[1])])
+    y_std = np.array([np.ascontiguousarray(Y[:, j]).std() for j in range(Y.shape[1])])
     u_mean, u_std = U.mean(axis=0), U.std(axis=0)
     y_std[y_std == 0] = 1.0
     u_std[u_std == 0] = 1.0
