@@ -6,7 +6,7 @@ import click
 from rich.console import Console
 
 from enginebench.cli.options import check_metrics, check_output, emit, split_list, store_option
-from enginebench.results.output import FORMATS
+from enginebench.results.formats import FORMATS, renderer
 
 
 @click.command()
@@ -88,15 +88,10 @@ def table(run_ref: str, fmt: str, metrics: str, interval, paired_metric: str, ou
             click.echo(note_text(notes, width), nl=False)  # each once, wrapped to the terminal or --width
         _verdict(run, raw, summary, tests, paired_metric, console.width)
         return
-    text = {
-        "term": lambda: tables.to_term(summary, cols, title=run.id, units=units, width=width or 80) + (
-            "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric, width or 80) if paired_metric else ""),
-        "md": lambda: tables.to_markdown(summary, cols, units=units) + (
-            "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric) if paired_metric else ""),
-        "latex": lambda: tables.to_latex(summary, cols, units=units),
-        "csv": lambda: tables.to_csv(summary, units=units),
-        "html": lambda: tables.to_html(summary, cols, units=units),
-    }[fmt]()
+    text = renderer(fmt)(summary, cols, title=run.id, units=units, width=width or 80)
+    if paired_metric and fmt in ("term", "md"):  # text formats carry the paired tests under the table
+        text += "\n" + paired_lines(tables.paired_tests(raw, paired_metric), paired_metric,
+                                    width or 80 if fmt == "term" else None)
     if notes and fmt in ("term", "md"):
         text += "\n" + "\n".join(notes) + "\n"
     emit(text, output)

@@ -27,8 +27,6 @@ from pathlib import Path
 from enginebench.errors import DataError
 
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
-FORMATS = ("term", "md", "latex", "csv", "html")
-"""The formats of ``enginebench table --format`` (their renderers: ``results/tables.py``), listed here alone."""
 
 
 def os_reason(exc: OSError) -> str:

@@ -286,7 +286,7 @@ def _labelled(summary: pd.DataFrame, metrics: Sequence[str] | None,
 
 
 def to_markdown(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
-                units: Mapping[str, str] | None = None) -> str:
+                units: Mapping[str, str] | None = None, **_: object) -> str:
     """A markdown table with its notes; `units` ({column: unit}, the run's ``info["units"]``) label the headers."""
     cells, bold, head = _labelled(summary, metrics, units)
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -302,7 +302,7 @@ def _latex_escape(text: str) -> str:
 
 
 def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
-             units: Mapping[str, str] | None = None) -> str:
+             units: Mapping[str, str] | None = None, **_: object) -> str:
     """A LaTeX tabular (booktabs) with the notes as comments; headers carry the units as ``to_markdown``'s."""
     cells, bold, head = _labelled(summary, metrics, units)
     lines = [r"\begin{tabular}{" + "l" * len(cells.index.names) + "r" * len(cells.columns) + "}", r"\toprule",
@@ -315,7 +315,7 @@ def to_latex(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
 
 
 def to_html(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *,
-            units: Mapping[str, str] | None = None) -> str:
+            units: Mapping[str, str] | None = None, **_: object) -> str:
     """An HTML table with the notes as paragraphs; headers carry the units as ``to_markdown``'s."""
     cells, bold, head_names = _labelled(summary, metrics, units)
     head = "".join(f"<th>{html.escape(h)}</th>" for h in head_names)
@@ -340,8 +340,10 @@ def long_table(summary: pd.DataFrame, *, units: Mapping[str, str] | None = None)
     return out
 
 
-def to_csv(summary: pd.DataFrame, *, units: Mapping[str, str] | None = None) -> str:
-    """The long summary as csv, one value per cell (``long_table``)."""
+def to_csv(summary: pd.DataFrame, metrics: Sequence[str] | None = None, *, units: Mapping[str, str] | None = None,
+           **_: object) -> str:
+    """The long summary as csv, one value per cell (``long_table``): every metric of ``summary`` (``metrics`` is
+    not used: a reader of the csv selects rows)."""
     return long_table(summary, units=units).to_csv(index=False)
 
 
@@ -429,7 +431,7 @@ def to_rich(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: 
 
 
 def to_term(summary: pd.DataFrame, metrics: Sequence[str] | None = None, title: str | None = None, *,
-            units: Mapping[str, str] | None = None, width: int = 80) -> str:
+            units: Mapping[str, str] | None = None, width: int = 80, **_: object) -> str:
     """``to_rich`` as plain text, every line at most `width` characters (notes wrap at word boundaries)."""
     import io
 

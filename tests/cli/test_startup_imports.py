@@ -78,3 +78,20 @@ def test_listing_methods_imports_no_pandas(tmp_path):
     out, modules = _modules(["methods", "list"], tmp_path)
     assert "naive-mean" in out and "ridge" in out
     assert _loaded(modules, "pandas") == []
+
+
+def test_every_table_format_has_its_renderer_in_one_registry():
+    """``results/formats.py`` is the one place a format is added: each listed name resolves to a function of the
+    renderer signature, and the CLI's --format choices are that list."""
+    import inspect
+
+    from enginebench.cli.table import table
+    from enginebench.results.formats import FORMATS, RENDERERS, renderer
+
+    assert FORMATS == tuple(RENDERERS) == ("term", "md", "latex", "csv", "html")
+    for fmt in FORMATS:
+        params = inspect.signature(renderer(fmt)).parameters
+        assert list(params)[:2] == ["summary", "metrics"], fmt
+        assert any(p.kind is p.VAR_KEYWORD for p in params.values()), fmt  # title, units, width: what it needs
+    option = next(p for p in table.params if p.name == "fmt")
+    assert tuple(option.type.choices) == FORMATS
