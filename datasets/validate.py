@@ -545,10 +545,11 @@ def validate_frame(
     keep, dropped = _drop_short(pieces, rows.lines, min_segment_rows, drop_short_segments, source=source, word=word)
 
     sel = rows.order[keep]
+    in_order = len(sel) == len(ln) and (not len(sel) or (sel[0] == 0 and bool(np.all(np.diff(sel) == 1))))
     out = pd.DataFrame({SEGMENT: _text_array(pieces.of_row[keep], pieces.names),
                         TIME: (rows.ticks[keep] * rows.scale).astype(float)})
     for c in schema.columns:
-        v = values[c.name][sel]
+        v = values[c.name] if in_order else values[c.name][sel]  # a file already in order is not gathered again
         out[c.name] = _text_array(v, labels[c.name]) if c.name in labels else v
     out.attrs["dropped_segments"] = dropped
     out.attrs["time_zone"] = zone
