@@ -83,6 +83,25 @@ def naive_mean_c(fitted: Any) -> CModel:
                   y_mean=np.zeros(len(mean)), y_std=np.ones(len(mean)))
 
 
+def kernel_sum_c(prefix: str, d: int, n: int, gamma: float) -> str:
+    """C statements setting ``ys`` to the Gaussian kernel sum of the scaled features ``x[d]`` over ``n`` centres,
+    as ``numerics.kernels.gaussian_apply`` computes it (|x|^2 - 2 x.c + |c|^2 clipped at 0, exp(-gamma D), times
+    alpha, plus the outputs' mean): the constants ``{prefix}_X``, ``_XN``, ``_ALPHA``, ``_YMEAN``."""
+    return f"""
+    double xx = 0.0;
+    for (int q = 0; q < {d}; q++) xx += x[q] * x[q];
+    for (int j = 0; j < NY; j++) ys[j] = 0.0;
+    for (int r = 0; r < {n}; r++) {{
+        double dot = 0.0;
+        for (int q = 0; q < {d}; q++) dot += x[q] * {prefix}_X[r * {d} + q];
+        double dist = dot * -2.0 + xx + {prefix}_XN[r];
+        if (!(dist > 0.0)) dist = 0.0;
+        double w = exp(dist * -{c_double(gamma)});
+        for (int j = 0; j < NY; j++) ys[j] += w * {prefix}_ALPHA[r * NY + j];
+    }}
+    for (int j = 0; j < NY; j++) ys[j] += {prefix}_YMEAN[j];"""
+
+
 def nfir_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
     """``nfir``: Gaussian-kernel regression on the inputs at the fitted lags (edge padding), no feedback."""
     k = fitted.krls
@@ -97,18 +116,7 @@ def nfir_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
         int q = i * {len(lags)} + l;
         x[q] = (uh[i * LU + NF_LAGS[l]] - NF_MEAN[q]) / NF_SCALE[q];
     }}
-    double xx = 0.0;
-    for (int q = 0; q < {d}; q++) xx += x[q] * x[q];
-    for (int j = 0; j < NY; j++) ys[j] = 0.0;
-    for (int r = 0; r < {n}; r++) {{
-        double dot = 0.0;
-        for (int q = 0; q < {d}; q++) dot += x[q] * NF_X[r * {d} + q];
-        double dist = dot * -2.0 + xx + NF_XN[r];
-        if (!(dist > 0.0)) dist = 0.0;
-        double w = exp(dist * -{c_double(k.gamma)});
-        for (int j = 0; j < NY; j++) ys[j] += w * NF_ALPHA[r * NY + j];
-    }}
-    for (int j = 0; j < NY; j++) ys[j] += NF_YMEAN[j];"""
+""" + kernel_sum_c("NF", d, n, k.gamma)
     return CModel(method="nfir", inputs=tuple(fitted.inputs), targets=targets, u_lags=int(lags.max()) + 1, y_lags=0,
                   body=body, constants={"NF_LAGS": lags, "NF_MEAN": mean, "NF_SCALE": scale,
                                         "NF_X": np.asarray(k.X_train, dtype=np.float64), "NF_ALPHA": alpha,
@@ -162,18 +170,7 @@ def krls_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
     # the arithmetic of ``gaussian_apply``: |x|^2 - 2 x.c + |c|^2 clipped at 0, exp(-gamma D), times alpha
     body = f"""    double x[{d}];
     for (int q = 0; q < {d}; q++) x[q] = (uh[KR_COL[q]] - KR_MEAN[q]) / KR_SCALE[q];
-    double xx = 0.0;
-    for (int q = 0; q < {d}; q++) xx += x[q] * x[q];
-    for (int j = 0; j < NY; j++) ys[j] = 0.0;
-    for (int r = 0; r < {n}; r++) {{
-        double dot = 0.0;
-        for (int q = 0; q < {d}; q++) dot += x[q] * KR_X[r * {d} + q];
-        double dist = dot * -2.0 + xx + KR_XN[r];
-        if (!(dist > 0.0)) dist = 0.0;
-        double w = exp(dist * -{c_double(fitted.gamma)});
-        for (int j = 0; j < NY; j++) ys[j] += w * KR_ALPHA[r * NY + j];
-    }}
-    for (int j = 0; j < NY; j++) ys[j] += KR_YMEAN[j];"""
+""" + kernel_sum_c("KR", d, n, fitted.gamma)
     return CModel(method="krls", inputs=tuple(inputs[i] for i in used), targets=targets, u_lags=lu, y_lags=0,
                   body=body, constants={"KR_COL": cols, "KR_MEAN": mean, "KR_SCALE": scale, "KR_X": centres,
                                         "KR_ALPHA": alpha, "KR_XN": np.einsum("ij,ij->i", centres, centres),
