@@ -64,8 +64,8 @@ from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, 
 from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
-from enginebench.methods.narx_model import (KernelModel, LinearBasis, NARXFit, Standardised, free_run,
-                                            nystroem_ridge, regressors, standardise)
+from enginebench.methods.narx_model import (KernelModel, LinearBasis, MIMOModel, NARXFit, Standardised, free_run,
+                                            mimo_free_run, mimo_regressors, nystroem_ridge, regressors, standardise)
 from enginebench.samples import Samples
 
 NAME = "narx"
@@ -94,6 +94,9 @@ class NARX(GivenOrders, Method):
         whole("kernel_lags", 8, "the kernel reads at most this many lags of each signal (the linear part all)",
               low=1, unit="samples"),
         flag("linear", True, "an unpenalised linear ARX part beside the kernel"),
+        flag("shared_kernel", False, "with joint_targets: ONE kernel on every output's lags and the inputs for all "
+             "outputs (a MIMO NARX, each output reading every output's past; one factorisation, k right-hand "
+             "sides) instead of one kernel per output"),
         grid("gamma_grid", (-3.0, 0.0, 4), "kernel widths searched: log10 of gamma relative to the regressor count d "
              "(low, high, count)", searches=("gamma",), bound=(1e-8, 1e3)),
         grid("lambda_grid", (-12.0, -4.0, 5), "ridge penalties searched: log10 of lambda relative to the number of "
@@ -213,12 +216,70 @@ class NARX(GivenOrders, Method):
                             lam=float(lam), target=target)
         return out, solver, n_rows, info  # type: ignore[return-value]
 
+    def _shared(self, k: int) -> bool:
+        return bool(self.options["shared_kernel"]) and k > 1
+
+    def _mimo_models(self, std: Standardised, k: int, points: Sequence[tuple[int, int, int, float, float]],
+                     rng: np.random.Generator, strict: bool = True
+                     ) -> tuple[list[MIMOModel | None], str, int, dict[str, Any]]:
+        """One MIMO model per point (``shared_kernel``): regressors, row draw, centres and the linear basis per
+        order, one kernel factorisation per (order, gamma) solved for every output and lambda at once."""
+        out: list[MIMOModel | None] = [None] * len(points)
+        solver, n_rows, info = "exact", 0, {}
+        linear = bool(self.options["linear"])
+        c = len(std.u_mean)
+        by_orders: dict[tuple[int, int, int], list[int]] = {}
+        for i, (na, nb, nk, _, _) in enumerate(points):
+            by_orders.setdefault((na, nb, nk), []).append(i)
+        for (na, nb, nk), members in by_orders.items():
+            ka, kb = self._kernel_lags(na, nb)
+            kcols = ([p * na + l for p in range(k) for l in range(na - ka, na)]
+                     + [k * na + j * nb + l for j in range(c) for l in range(kb)])
+            Z, Y = mimo_regressors(std.traj, na, nb, nk)
+            need = 2 + (Z.shape[1] + 1 if linear else 0)
+            if len(Y) < need:
+                if not strict:
+                    continue
+                raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {len(Y)} regression rows "
+                                  f"for {need - 1} linear parameters per output (shared kernel over {k} outputs); "
+                                  "use fewer lags")
+            rows = self._rows(len(Y), rng)
+            Z, Y = Z[rows], Y[rows]
+            n_rows = len(Y)
+            Zk = np.ascontiguousarray(Z[:, kcols])
+            basis = LinearBasis(np.hstack([Z, np.ones((n_rows, 1))])) if linear else None
+            if n_rows > int(self.options["exact_max_rows"]):
+                centres = np.sort(rng.choice(n_rows, size=min(int(self.options["centres"]), n_rows), replace=False))
+                C, solver = Zk[centres], "nystroem"
+            else:
+                C, solver = Zk, "exact"
+            gammas = np.array([points[i][3] for i in members])
+            for gamma in dict.fromkeys(gammas.tolist()):
+                idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
+                lams = np.array([points[i][4] for i in idx])
+                betas, thetas, rank = nystroem_ridge(Zk, Y, C, gamma / Zk.shape[1], lams * n_rows, basis)
+                info = {"kernel_rank": rank}
+                for pos, (i, lam) in enumerate(zip(idx, lams)):
+                    th = thetas[pos] if thetas is not None else np.zeros((Z.shape[1] + 1, k))
+                    a = np.stack([th[[p * na + na - lag for p in range(k)]] for lag in range(1, na + 1)])
+                    out[i] = MIMOModel(na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=a,
+                                       b=np.ascontiguousarray(th[k * na:k * na + c * nb].reshape(c, nb, k)),
+                                       c0=np.array(th[-1]), centres=np.ascontiguousarray(C),
+                                       beta=np.ascontiguousarray(betas[pos]), gamma=gamma, lam=float(lam))
+        return out, solver, n_rows, info
+
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> NARXFit:
         """One step ahead on the training segments; the kernel rows and centres are drawn with ``rng``."""
         self.check_mode(train.mode)
         point = self._point(params)
         std = standardise(training_trajectories(NAME, train), float(self.options["envelope"]))
-        models, solver, n_rows, info = self._models(std, len(train.target_names), [point], rng)
+        k = len(train.target_names)
+        if self._shared(k):
+            mimo, solver, n_rows, info = self._mimo_models(std, k, [point], rng)
+            return NARXFit(models=(), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean, u_std=std.u_std,
+                           input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+                           envelope=std.envelope, solver=solver, n_rows=n_rows, info=info, mimo=mimo[0])
+        models, solver, n_rows, info = self._models(std, k, [point], rng)
         return NARXFit(models=tuple(models[0]), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean,
                        u_std=std.u_std, input_names=tuple(train.input_names), target_names=tuple(train.target_names),
                        envelope=std.envelope, solver=solver, n_rows=n_rows, info=info)
@@ -240,12 +301,16 @@ class NARX(GivenOrders, Method):
             U = [(np.asarray(data.segments[i].U, dtype=np.float64) - first.u_mean) / first.u_std for i in members]
             W = [(windows[i] - first.y_mean) / first.y_std for i in members]
             lengths = [len(data.segments[i].t) for i in members]
-            runs = free_run(models, U, W, lengths, self._limits(first, models))  # (fits * k, segments, T)
+            if first.mimo is not None:  # (fits, segments, T, k) -> (fits, k, segments, T)
+                runs = mimo_free_run([f.mimo for f in fits], U, W, lengths).transpose(0, 3, 1, 2)
+            else:
+                runs = free_run(models, U, W, lengths, self._limits(first, models))  # (fits * k, segments, T)
+                runs = runs.reshape(len(fits), k, *runs.shape[1:])
             for f_idx, f in enumerate(fits):
                 for r, i in enumerate(members):
                     n = lengths[r]
                     with np.errstate(over="ignore", invalid="ignore"):  # a run that blew up is held just below
-                        traj = runs[f_idx * k:(f_idx + 1) * k, r, :n].T * f.y_std + f.y_mean
+                        traj = runs[f_idx, :, r, :n].T * f.y_std + f.y_mean
                     traj[:N] = windows[i]  # the window is measured (exactly, not through the scaling)
                     traj, bad = f.envelope.clip_run(traj, N)
                     results[f_idx][i] = traj[data.segments[i].rows]
@@ -284,20 +349,25 @@ class NARX(GivenOrders, Method):
         if not points or not data.segments:
             return out
         std = standardise(training_trajectories(NAME, train), float(self.options["envelope"]))
-        models, solver, n_rows, info = self._models(std, k, points, rng, strict=False)
+        shared = self._shared(k)
+        models, solver, n_rows, info = (self._mimo_models if shared else self._models)(std, k, points, rng,
+                                                                                      strict=False)
         usable = [i for i, ms in enumerate(models) if ms is not None]
         out[[i for i in range(len(points)) if i not in usable]] = np.nan  # too few rows for these lags: +inf score
         if not usable:
             return out
-        fits = [NARXFit(models=tuple(models[i]), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean,  # type: ignore
-                        u_std=std.u_std, input_names=tuple(train.input_names), target_names=tuple(train.target_names),
-                        envelope=std.envelope, solver=solver, n_rows=n_rows) for i in usable]
+        fits = [NARXFit(models=() if shared else tuple(models[i]), y_mean=std.y_mean, y_std=std.y_std,  # type: ignore
+                        u_mean=std.u_mean, u_std=std.u_std, input_names=tuple(train.input_names),
+                        target_names=tuple(train.target_names), envelope=std.envelope, solver=solver, n_rows=n_rows,
+                        mimo=models[i] if shared else None) for i in usable]  # type: ignore[arg-type]
         for i, (arrays, _) in zip(usable, self._simulate(fits, data)):
             out[i] = np.concatenate(arrays)
         return out
 
     def describe(self, fitted: NARXFit) -> dict[str, Any]:
         """Orders, kernel hyperparameters, the linear part (standardised) with its poles, solver facts."""
+        if fitted.mimo is not None:
+            return self._describe_mimo(fitted)
         m = fitted.models[0]
         linear = {}
         for name, mod in zip(fitted.target_names, fitted.models):
@@ -323,10 +393,38 @@ class NARX(GivenOrders, Method):
             **fitted.info,
         }
 
+    def _describe_mimo(self, fitted: NARXFit) -> dict[str, Any]:
+        """``describe`` of a shared-kernel model: the linear part's stability from its MIMO companion matrix."""
+        m = fitted.mimo
+        assert m is not None
+        k = m.k
+        comp = np.zeros((m.na * k, m.na * k))  # state [y(t-1) .. y(t-na)], each a k-vector
+        comp[:k] = np.hstack([m.a[i].T for i in range(m.na)])
+        comp[k:, :-k] = np.eye((m.na - 1) * k)
+        radius = float(np.abs(np.linalg.eigvals(comp)).max()) if comp.size else 0.0
+        return {
+            "na": m.na, "nb": m.nb, "nk": m.nk, "kernel_lags": [m.ka, m.kb], "shared_kernel": True,
+            "gamma_relative": m.gamma, "gamma": m.gamma / m.d, "lambda_relative": m.lam,
+            "lambda": m.lam * fitted.n_rows, "regressors": m.d, "solver": fitted.solver, "centres": int(len(m.beta)),
+            "regression_rows": fitted.n_rows,
+            "model": "y_o(t) = sum_p a_p,o . [y_p(t-1)..y_p(t-na)] + b_o . [u(t-nk)..u(t-nk-nb+1)] + c0_o + sum_i "
+                     "beta_i,o exp(-gamma |z(t) - c_i|^2), z(t) = [y_p(t-ka)..y_p(t-1) for every output p, "
+                     "u(t-nk)..u(t-nk-kb+1)], standardised signals, one kernel for all outputs",
+            "linear_part": ({"max_pole_modulus": radius, "stable": bool(radius < 1.0)}
+                            if bool(self.options["linear"]) else None),
+            "standardisation": {"y_mean": fitted.y_mean.tolist(), "y_std": fitted.y_std.tolist(),
+                                "u_mean": fitted.u_mean.tolist(), "u_std": fitted.u_std.tolist()},
+            "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
+            **fitted.info,
+        }
+
     def c_model(self, fitted):
         """The C step of ``fitted`` for an FMU and the real-time figures (``methods/export``)."""
         from enginebench.methods.export.models import narx_c
 
+        if fitted.mimo is not None:
+            raise MethodError(f"method {NAME!r}: a shared-kernel (MIMO) model has no C step yet; export a model of "
+                              "a run with shared_kernel = false (one kernel per output)")
         return narx_c(fitted)
 
     def step_times(self, fitted, data):

@@ -93,7 +93,7 @@ class KernelModel:
 
 @dataclass(frozen=True)
 class NARXFit:
-    """Per-target kernel models plus the standardisation, the envelope and what the solver did."""
+    """Per-target kernel models (or one MIMO model) plus the standardisation, the envelope and what the solver did."""
 
     models: tuple[KernelModel, ...]
     y_mean: np.ndarray
@@ -106,6 +106,8 @@ class NARXFit:
     solver: str
     n_rows: int
     info: dict[str, Any] = field(default_factory=dict)
+    mimo: "MIMOModel | None" = None
+    """With ``shared_kernel``: the one model of every output (``models`` is then empty)."""
 
 
 # --------------------------------------------------------------------------- regression data
@@ -335,6 +337,160 @@ def _retire(H: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray, Ay
     return Ga
 
 
+# --------------------------------------------------------------------------- one kernel for all outputs
+@dataclass(frozen=True)
+class MIMOModel:
+    """Every output's model on ONE kernel (``shared_kernel = true``), standardised: a MIMO NARX.
+
+    Each output reads every output's past. Linear part: ``a[i-1, p, o]`` multiplies y_p(t-i)
+    in output o, ``b[j, l, o]`` multiplies u_j(t-nk-l), constant ``c0[o]``. Kernel regressors
+    z = [y_1(t-ka) .. y_1(t-1), ..., y_k(t-ka) .. y_k(t-1), u_1(t-nk) .. u_1(t-nk-kb+1), u_2 ...];
+    the centres (m, k ka + inputs x kb) and the exponent per centre are shared by the outputs,
+    whose coefficients are the columns of ``beta`` (m, k).
+    """
+
+    na: int
+    nb: int
+    nk: int
+    ka: int
+    kb: int
+    a: np.ndarray
+    b: np.ndarray
+    c0: np.ndarray
+    centres: np.ndarray
+    beta: np.ndarray
+    gamma: float
+    lam: float
+
+    @property
+    def k(self) -> int:
+        return self.beta.shape[1]
+
+    @property
+    def d(self) -> int:
+        return self.centres.shape[1]
+
+    @property
+    def s(self) -> float:
+        return self.gamma / self.d / LN2
+
+
+def mimo_regressors(traj: Sequence[Trajectory], na: int, nb: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows z(t) = [y_p(t-na) .. y_p(t-1) for each output p, u_j(t-nk) .. u_j(t-nk-nb+1) per input] and Y(t) (rows, k).
+
+    With one output this is ``regressors(traj, 0, ...)``.
+    """
+    L = max(na, nk + nb - 1)
+    Z, Y = [], []
+    for tr in traj:
+        n, k = tr.Y.shape
+        if n <= L:
+            continue
+        t = np.arange(L, n)
+        lag_rows = t[:, None] - np.arange(na, 0, -1)[None, :]
+        cols = [tr.Y[lag_rows, p] for p in range(k)]
+        for j in range(tr.U.shape[1]):
+            cols.append(tr.U[t[:, None] - (nk + np.arange(nb))[None, :], j])
+        Z.append(np.hstack(cols))
+        Y.append(tr.Y[L:])
+    if not Z:
+        k = traj[0].Y.shape[1] if traj else 1
+        return np.empty((0, k * na + nb * (traj[0].U.shape[1] if traj else 0))), np.empty((0, k))
+    return np.vstack(Z), np.vstack(Y)
+
+
+def mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
+                  lengths: Sequence[int]) -> np.ndarray:
+    """Simulate every MIMO model on every segment at once, standardised: (models, segments, max length, k).
+
+    As ``free_run`` (window rows measured, then every output fed back; BLAS single-threaded),
+    with one exponent per centre per step serving all k outputs. Models are not retired.
+    """
+    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):  # blow-ups are flagged later
+        return _mimo_free_run(models, inputs, windows, lengths)
+
+
+def _mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
+                   lengths: Sequence[int]) -> np.ndarray:
+    G, S, k = len(models), len(inputs), models[0].k
+    N = len(windows[0])
+    lengths = np.asarray(lengths, dtype=np.int64)
+    T = int(lengths.max())
+    order = np.argsort(-lengths, kind="stable")
+    sorted_len = lengths[order]
+    na_max = max(m.na for m in models)
+    ka_max = max(m.ka for m in models)
+    lu = max(m.nk + m.kb - 1 for m in models)
+    ll = max(m.nk + m.nb - 1 for m in models)
+    c = inputs[0].shape[1]
+    du = c * (lu + 1)
+    m_max = max(len(m.beta) for m in models)
+
+    # history rows per step: (lag position, y or y^2, output), oldest lag first, as in ``_free_run``
+    Cy = np.zeros((G, ka_max, 2, k, m_max))
+    Cu = np.zeros((G, 2 * du + 1, m_max))
+    beta = np.zeros((G, m_max, k))
+    Ay = np.zeros((G, na_max, k, k))
+    Bl = np.zeros((c * (ll + 1), G, k))
+    c0 = np.zeros((G, k))
+    for g, m in enumerate(models):
+        s, n_c = m.s, len(m.beta)
+        for p in range(k):
+            for i in range(1, m.ka + 1):
+                Cy[g, ka_max - i, 0, p, :n_c] = 2 * s * m.centres[:, p * m.ka + m.ka - i]
+                Cy[g, ka_max - i, 1, p, :n_c] = -s
+        cu = m.centres[:, k * m.ka:]
+        for j in range(c):
+            for l in range(m.kb):
+                col = j * (lu + 1) + m.nk + l
+                Cu[g, col, :n_c] = 2 * s * cu[:, j * m.kb + l]
+                Cu[g, du + col, :n_c] = -s
+            Bl[j * (ll + 1) + m.nk + np.arange(m.nb), g] = m.b[j]
+        Cu[g, 2 * du, :n_c] = -s * (m.centres ** 2).sum(axis=1)
+        beta[g, :n_c] = m.beta
+        Ay[g, na_max - np.arange(1, m.na + 1)] = m.a
+        c0[g] = m.c0
+    Cy = Cy.reshape(G, ka_max * 2 * k, m_max)
+    Ay = Ay.reshape(G, na_max * k, k)
+    Bl = Bl.reshape(c * (ll + 1), G * k)
+    Cu2 = np.ascontiguousarray(Cu.transpose(1, 0, 2).reshape(2 * du + 1, G * m_max))
+
+    V = np.empty((S, T, G, k))
+    Zu = np.zeros((S, T, 2 * du + 1))
+    H = np.zeros((G, S, na_max + T, 2, k))
+    for r, s_idx in enumerate(order):
+        V[r] = (_input_lags(inputs[s_idx], ll, T) @ Bl).reshape(T, G, k) + c0
+        lag = _input_lags(inputs[s_idx], lu, T)
+        Zu[r, :, :du] = lag
+        Zu[r, :, du:2 * du] = lag ** 2
+        Zu[r, :, 2 * du] = 1.0
+        w = windows[s_idx]  # (N, k)
+        H[:, r, :na_max, 0] = w[0]
+        H[:, r, na_max:na_max + N, 0] = w
+    H[..., 1, :] = H[..., 0, :] ** 2
+
+    steps = max(1, int(CHUNK_MIB * 2**20 // (8 * G * S * m_max)))
+    kh = na_max - ka_max
+    for t0 in range(N, T, steps):
+        t1 = min(T, t0 + steps)
+        live = int(np.searchsorted(-sorted_len, -(t0 + 1), side="right"))
+        P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2).reshape(live, t1 - t0, G, m_max)
+        for t in range(t0, t1):
+            while live and sorted_len[live - 1] <= t:
+                live -= 1
+            E = np.matmul(H[:, :live, t + kh:t + na_max].reshape(G, live, ka_max * 2 * k), Cy)
+            E += P[:live, t - t0].transpose(1, 0, 2)
+            np.exp2(E, out=E)
+            y = np.matmul(E, beta)
+            y += np.matmul(H[:, :live, t:t + na_max, 0].reshape(G, live, na_max * k), Ay)
+            y += V[:live, t].transpose(1, 0, 2)
+            H[:, :live, na_max + t, 0] = y
+            H[:, :live, na_max + t, 1] = y * y
+    out = np.empty((G, S, T, k))
+    out[:, order] = H[:, :, na_max:, 0]
+    return out
+
+
 class LinearBasis:
     """The unpenalised linear regressors Phi (n, p) of ``nystroem_ridge``, factorised once (pivoted QR).
 
@@ -377,7 +533,8 @@ def nystroem_ridge(Z: np.ndarray, y: np.ndarray, C: np.ndarray, gamma: float, la
     pass one to reuse it across gammas), one eigendecomposition of the projected F^T F
     serves every lambda, and theta is the least squares fit of Phi to what the kernel
     leaves. With every row a centre (C = Z) and no Phi this is exact KRLS. Returns beta
-    (L, m), theta (L, p) or None, and the rank r.
+    (L, m), theta (L, p) or None, and the rank r; for several outputs ``y`` (n, k) on the
+    same kernel, beta (L, m, k) and theta (L, p, k) from the one factorisation.
     BLAS runs single-threaded here: on a shared 2-core machine a threaded eigh of a 200 x 200
     matrix took 1 s instead of 14 ms (threads spinning against other processes).
     """
@@ -399,7 +556,13 @@ def _nystroem_ridge(Z: np.ndarray, y: np.ndarray, C: np.ndarray, gamma: float, l
     ev, W = scipy.linalg.eigh(Fp.T @ Fp)
     ev = np.maximum(ev, 0.0)
     Wb = W.T @ (Fp.T @ yp)
-    ws = np.stack([W @ (Wb / (ev + lam)) for lam in np.asarray(lambdas, dtype=np.float64)])  # (L, r)
+    lams = np.asarray(lambdas, dtype=np.float64)
+    if y.ndim == 2:  # several outputs on one kernel: k right-hand sides of the same factorisation
+        wk = np.stack([W @ (Wb / (ev + lam)[:, None]) for lam in lams])  # (L, r, k)
+        betas = np.einsum("mr,lrk->lmk", T, wk)
+        thetas = None if basis is None else np.stack([basis.solve(y - F @ w) for w in wk])
+        return betas, thetas, r
+    ws = np.stack([W @ (Wb / (ev + lam)) for lam in lams])  # (L, r)
     betas = ws @ T.T
     thetas = None if basis is None else basis.solve(y[:, None] - F @ ws.T).T
     return betas, thetas, r
