@@ -33,8 +33,14 @@ time loop for all outputs instead of one per output job); each target's model is
 job of that target alone fits at the same point (exactly, with the exact solver; with
 Nystroem centres the centres are drawn per target from the same generator in turn), and one
 point (lags, gamma, lambda) is selected for all targets on their scale-free summed error.
-Each output's kernel reads its own lags and the inputs; outputs do not read each other's
-(a MIMO NARX with cross-output regressors is not offered).
+Each output's kernel reads its own lags and the inputs; outputs do not read each other's.
+``shared_kernel = true`` makes it a MIMO NARX instead: ONE kernel on the last ``kernel_lags``
+lags of every output and the inputs, one linear part on every output's ``na`` lags, shared
+by all outputs (``MIMOModel``): one regressor matrix, one row and centre draw, one linear
+basis and one kernel factorisation per (orders, gamma), solved for the k outputs as k
+right-hand sides; in the free run one exponent per centre per step serves every output.
+Each output can then read another's past (an emission driven by a temperature); one job
+of k outputs costs about one output's kernel work. Not exported as C yet.
 
 Defaults derived from the data:
 - lags (na = nb, in samples) from {2, 4, 8, 16, 32, 64} where the training data carry them
