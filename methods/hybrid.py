@@ -101,6 +101,11 @@ class HybridFitted:
     """RMS(h - p) on the training rows, target units, pooled over targets."""
     rms_pm_error: float
     """RMS(y - p) on the training rows: the calibrated PM's own training error."""
+    pm_name: str = ""
+    """The physical model's name, the targets and the sample period: what the C step (``c_model``) builds the PM's
+    own C step from; empty in a model stored before the hybrids had a C step."""
+    target_names: tuple[str, ...] = ()
+    dt: float = 0.0
 
     @property
     def pm_share(self) -> float:
@@ -112,7 +117,14 @@ def _fitted(strategy: str, model: KRLSFitted | MTLFitted, pm_params: dict[str, A
     y = train.y
     return HybridFitted(strategy=strategy, model=model, pm_params=pm_params, n_features=train.X.shape[1],
                         rms_from_pm=float(np.sqrt(np.mean((pred - p) ** 2))),
-                        rms_pm_error=float(np.sqrt(np.mean((y - p) ** 2))))
+                        rms_pm_error=float(np.sqrt(np.mean((y - p) ** 2))),
+                        pm_name=str(physical_model(train).name), target_names=tuple(train.target_names),
+                        dt=float(train.dt))
+
+
+EXPORT_NOTE = ("FMU of a static-mode model (or window mode with a 0 s window: inputs only) where the dataset's "
+               "physical model has a C step (marine-diesel-pm, gas-turbine-tat): enginebench export RUN --method M "
+               "--fmu OUT.fmu; a window model reading past measured outputs: not exportable")
 
 
 def _check_feature_count(method: str, data: Samples, expected: int) -> None:
@@ -141,6 +153,7 @@ class KRLSPM(KRLS):
     family = "hybrid"
     modes = frozenset({"static", "window"})
     summary = "hybrid: KRLS with the physical model's prediction as an extra input feature"
+    export_note = EXPORT_NOTE
     strategy = "feature"
     pm_input = True
     """The PM's prediction is a feature."""
@@ -171,6 +184,14 @@ class KRLSPM(KRLS):
     def predict(self, fitted: HybridFitted, data: Samples) -> list[np.ndarray]:
         _check_feature_count(self.name, data, fitted.n_features)
         return self._predict_model(fitted.model, data, pm_rows(self.name, data, fitted.pm_params))
+
+    def c_model(self, fitted: HybridFitted) -> Any:
+        """The C step for an FMU (``methods/export/models.py`` ``hybrid_c``): the PM's own C step p, KRLS's kernel
+        sum on the features (with p where it is one), plus p for residual learning. One line where the PM has no
+        C step or a feature is a past measured output (window mode with Delta > 0)."""
+        from enginebench.methods.export.models import hybrid_c
+
+        return hybrid_c(self.name, fitted)
 
     def describe(self, fitted: HybridFitted) -> dict[str, Any]:
         return _description(fitted, None, {k: v for k, v in super().describe(fitted.model).items()
@@ -267,6 +288,7 @@ class Hybrid(KRLS):
     family = "hybrid"
     modes = frozenset({"static", "window"})
     summary = "hybrid: the PM/KRLS combination (shared, task, feature, residual, residual-feature) selected on training data"
+    export_note = EXPORT_NOTE
     declared_options = KRLS.declared_options.extend(
         grid("theta_grid", (-4, 4, 41), "task couplings searched for the shared and task strategies: log10 of "
              "theta (low, high, count)"),
@@ -338,6 +360,12 @@ class Hybrid(KRLS):
 
     def predict(self, fitted: HybridFitted, data: Samples) -> list[np.ndarray]:
         return self.strategy_method(fitted.strategy).predict(fitted, data)
+
+    def c_model(self, fitted: HybridFitted) -> Any:
+        """The selected strategy's C step (``KRLSPM.c_model``, ``MTLKRLS.c_model``)."""
+        from enginebench.methods.export.models import hybrid_c
+
+        return hybrid_c(self.name, fitted)
 
     def describe(self, fitted: HybridFitted) -> dict[str, Any]:
         out = self.strategy_method(fitted.strategy).describe(fitted)

@@ -92,12 +92,12 @@ class KRLS(Method):
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """The C step and its note are krls's own: a subclass (nfir, the hybrids) predicts otherwise, so it offers
-        the one it defines itself or none (``Method.c_model``)."""
+        the one it or a class between it and krls defines (a hybrid strategy inherits its family's), or none
+        (``Method.c_model``)."""
         super().__init_subclass__(**kwargs)
-        if "c_model" not in cls.__dict__:
-            cls.c_model = Method.c_model  # type: ignore[method-assign]
-        if "export_note" not in cls.__dict__:
-            cls.export_note = None
+        for attr, none in (("c_model", Method.c_model), ("export_note", None)):
+            if next(k for k in cls.__mro__ if attr in k.__dict__) is KRLS:
+                setattr(cls, attr, none)
 
     def uses_falkon(self, n_rows: int) -> bool:
         """Exact below ``exact_max_rows`` training rows (solver 'auto'), FALKON above or on request."""

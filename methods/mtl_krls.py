@@ -105,6 +105,14 @@ class MTLFitted:
     pm_params: dict[str, Any]
     distance_to_pm: float
     """RMS gap between the fitted hybrid and the PM on the training rows (target units)."""
+    feature_names: tuple[str, ...] = ()
+    """The kernel's feature columns: the samples' features, then ``pm:<target>`` (``pm_feature``); with the input
+    and target names, the PM's name and the sample period dt, what the C step (``c_model``) reads. Empty in a
+    model stored before the C step existed."""
+    input_names: tuple[str, ...] = ()
+    target_names: tuple[str, ...] = ()
+    pm_name: str = ""
+    dt: float = 0.0
 
 
 class MTLKRLS(KRLS):
@@ -114,6 +122,9 @@ class MTLKRLS(KRLS):
     family = "hybrid"
     modes = frozenset({"static", "window"})
     summary = "hybrid multi-task KRLS: measurements and the physical model as two tasks"
+    export_note = ("FMU of a static-mode model (or window mode with a 0 s window: inputs only) where the dataset's "
+                   "physical model has a C step (marine-diesel-pm, gas-turbine-tat): enginebench export RUN --method "
+                   "M --fmu OUT.fmu; a window model reading past measured outputs: not exportable")
     declared_options = KRLS.declared_options.extend(
         grid("theta_grid", (-4, 4, 41), "task couplings searched: log10 of theta, pulling the y and PM task models "
              "towards the shared one (low, high, count)", searches=("theta",), bound=(1e-10, 1e10)),
@@ -187,11 +198,24 @@ class MTLKRLS(KRLS):
             alpha = spectral.lift(b[:, 0, 0, :])
             fitted_train = spectral.lift(spectral.s[:, None] * b[:, 0, 0, :])  # Q alpha = V diag(s) coeffs
         gap = float(np.sqrt(np.mean((fitted_train - pc) ** 2))) if self.options["pm_task"] else float("nan")
-        return MTLFitted(scaler, Xs, alpha, gamma, lam, theta, offset, pm_params, gap)
+        names = (*train.feature_names, *(f"pm:{t}" for t in train.target_names)) if self.options["pm_feature"] \
+            else tuple(train.feature_names)
+        return MTLFitted(scaler, Xs, alpha, gamma, lam, theta, offset, pm_params, gap, feature_names=names,
+                         input_names=tuple(train.input_names), target_names=tuple(train.target_names),
+                         pm_name=str(physical_model(train).name), dt=float(train.dt))
 
     def predict(self, fitted: MTLFitted, data: Samples) -> list[np.ndarray]:
         Xe = self._eval(data, fitted.pm_params, fitted.scaler)
         return split_rows(gaussian_apply(Xe, fitted.X_train, fitted.gamma, fitted.alpha) + fitted.offset, data)
+
+    def c_model(self, fitted: MTLFitted) -> Any:
+        """The C step for an FMU (``methods/export/models.py`` ``hybrid_c``): the physical model's own C step, then
+        h = sum_i alpha_i K(x_i, [x, p]) + offset, the prediction of ``predict`` (the shared or y-task model's
+        coefficients alpha over the training rows). One line where the PM has no C step or a feature is a past
+        measured output (window mode with Delta > 0)."""
+        from enginebench.methods.export.models import hybrid_c
+
+        return hybrid_c(self.name, fitted)
 
     def describe(self, fitted: MTLFitted) -> dict[str, Any]:
         return {"gamma": fitted.gamma, "lambda": fitted.lam, "theta": fitted.theta, "n_train": int(fitted.X_train.shape[0]),

@@ -5,8 +5,9 @@ the test part with the job's predictions of it (``results/model_store.py``). The
 method's C step (``Method.c_model``), then driven by fmpy over every test segment, from the same init
 window the job used; the largest difference to the job's predictions at the evaluated rows is the
 verdict, relative to the largest |prediction| of each target (``TOLERANCE``: 1e-9, float64). A static- or
-window-mode model is exported where its C step reads inputs only (no output feedback, no states): the FMU
-then steps over each test segment's inputs and is compared on the rows the job predicted.
+window-mode model is exported where its C step reads inputs only (no output feedback; a physical model's
+states, as in the KRLS hybrids, start with each segment as the job's simulation of it did): the FMU then steps
+over each test segment's inputs and is compared on the rows the job predicted.
 """
 
 from __future__ import annotations
@@ -116,8 +117,9 @@ def export_fmu(model_path: Path, out: Path, *, timing: bool = False, tolerance: 
     stored: StoredModel = load_model(model_path)
     data = stored.meta["data"]
     model = check_exportable(stored.method, stored.fitted, tuple(data["target_names"]))
-    if data["mode"] != "simulation" and (model.y_lags or model.n_state):
-        raise MethodError(f"method {stored.method.name!r}: its C step runs freely on its own past outputs or states; "
+    if data["mode"] != "simulation" and model.y_lags:  # states (a physical model's lags) run from each segment's
+        # start, as the job simulated the physical model over the whole segment before taking its rows
+        raise MethodError(f"method {stored.method.name!r}: its C step runs freely on its own past outputs; "
                           f"this model was tested in mode {data['mode']!r} (export models of simulation-mode runs)")
     tolerance = max(tolerance, model.tolerance or 0.0)  # a model whose solver stops earlier states its own
     if not stored.check_data:

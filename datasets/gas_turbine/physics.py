@@ -67,6 +67,13 @@ class TATExpansionModel:
         params["rms_residual_degC"] = float(np.sqrt(np.mean(fit.fun ** 2)))
         return params
 
+    def c_model(self, params: Mapping[str, Any], dt: float, targets: Sequence[str]) -> Any:
+        """The model's step in C (``c_step.py``, given this module's constants): the hybrids' FMUs on this data."""
+        from enginebench.datasets.gas_turbine.c_step import c_model
+
+        return c_model(self, params, targets, kelvin=KELVIN, pressure_ratio=COMBUSTOR_PRESSURE_RATIO,
+                       mbar_per_bar=MBAR_PER_BAR)
+
     def simulate(self, params: Mapping[str, Any], segment: Mapping[str, np.ndarray], dt: float) -> dict[str, np.ndarray]:
         self._check(segment)
         return {"TAT": self._predict(params["k"], params["b"], segment)}

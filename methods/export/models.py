@@ -176,3 +176,114 @@ def krls_c(fitted: Any, targets: tuple[str, ...] = ()) -> CModel:
                                         "KR_ALPHA": alpha, "KR_XN": np.einsum("ij,ij->i", centres, centres),
                                         "KR_YMEAN": np.asarray(fitted.y_mean, dtype=np.float64).reshape(ny)},
                   y_mean=np.zeros(ny), y_std=np.ones(ny))
+
+
+PM_FEATURE = "pm:"
+"""Prefix of a hybrid's feature column that is the physical model's prediction of a target (``pm:<target>``)."""
+
+
+def _cannot(method: str, why: str) -> Exception:
+    from enginebench.errors import MethodError
+
+    return MethodError(f"method {method!r} cannot be exported: {why}")
+
+
+def pm_step_c(method: str, pm_name: str, pm_params: Any, dt: float, targets: tuple[str, ...]) -> CModel:
+    """The C step of the dataset's physical model ``pm_name`` with ``pm_params`` at ``dt`` (its ``c_model``), or a
+    MethodError (one line) where that model has none."""
+    from enginebench.physical import get_physical_model
+
+    try:
+        pm = get_physical_model(pm_name) if pm_name else None
+    except (TypeError, ValueError):  # a model built from its dataset's metadata alone (an FMU's)
+        pm = None
+    make = getattr(pm, "c_model", None)
+    if make is None:
+        raise _cannot(method, f"its physical model {pm_name!r} has no C step (the marine-diesel-pm and "
+                              "gas-turbine-tat models have one); export a method without it (krls)")
+    model = make(pm_params, float(dt), tuple(targets))
+    if tuple(model.targets) != tuple(targets) or any(v is not None for v in (model.u_mean, model.u_std,
+                                                                             model.y_mean, model.y_std)):
+        raise _cannot(method, f"the C step of physical model {pm_name!r} does not give {', '.join(targets)} in raw "
+                              "units; please report this")
+    return model
+
+
+def pm_kernel_c(method: str, *, pm_name: str, pm_params: Any, dt: float, targets: tuple[str, ...],
+                inputs: tuple[str, ...], features: tuple[str, ...], scaler: Any, centres: np.ndarray,
+                alpha: np.ndarray, gamma: float, y_mean: np.ndarray, residual: bool) -> CModel:
+    """A KRLS hybrid's step: the physical model's prediction p (its own C step, with its states), the features
+    s = ((inputs at their lags, p) - mean) / scale as the training scaler, y = sum_r alpha_r exp(-gamma |s - c_r|^2)
+    + y_mean (``kernel_sum_c``, the arithmetic of ``gaussian_apply``), plus p for residual learning. The
+    features must be inputs (static mode, or window mode on inputs alone) or ``pm:<target>``; a past measured
+    output (window mode with Delta > 0) is refused in one line, as is a physical model without a C step."""
+    if not pm_name or not targets or not features:
+        raise _cannot(method, "this stored model does not name its physical model and features (stored before the "
+                              "hybrids had a C step); run the experiment again with --keep-models")
+    where: list[tuple[str, int, int]] = []
+    for name in features:
+        if name.startswith(PM_FEATURE) and name[len(PM_FEATURE):] in targets:
+            where.append(("p", targets.index(name[len(PM_FEATURE):]), 0))
+            continue
+        at = _input_lag(name, inputs)
+        if at is None:
+            raise _cannot(method, f"its feature {name!r} is not an input but a past measured output (window mode), "
+                                  "which an FMU does not receive after its init window; export a static-mode run "
+                                  "(or a window of 0 s)")
+        where.append(("u", *at))
+    pm = pm_step_c(method, pm_name, pm_params, dt, targets)
+    missing = [c for c in pm.inputs if c not in inputs]
+    if missing:
+        raise _cannot(method, f"its physical model reads {', '.join(missing)}, which are not among the model's "
+                              "inputs; please report this")
+    used = sorted({inputs.index(c) for c in pm.inputs} | {i for kind, i, _ in where if kind == "u"})
+    lu = max([int(pm.u_lags), 1] + [lag + 1 for kind, _, lag in where if kind == "u"])
+    pm_cols = np.array([used.index(inputs.index(c)) for c in pm.inputs], dtype=np.int64)
+    d = len(features)
+    mean = np.zeros(d) if getattr(scaler, "mean_", None) is None else np.asarray(scaler.mean_, dtype=np.float64)
+    scale = np.ones(d) if getattr(scaler, "scale_", None) is None else np.asarray(scaler.scale_, dtype=np.float64)
+    centres = np.ascontiguousarray(centres, dtype=np.float64)
+    alpha = np.asarray(alpha, dtype=np.float64)
+    n, ny = alpha.shape
+    feats = []
+    for q, (kind, i, lag) in enumerate(where):
+        src = f"p[{i}]" if kind == "p" else f"uh[{used.index(i)} * LU + {lag}]"
+        feats.append(f"    x[{q}] = ({src} - HY_MEAN[{q}]) / HY_SCALE[{q}];")
+    # the PM's body in a function of its own: its inputs at HY_PMCOL (every lag), its outputs p, its states
+    prelude = pm.prelude + f"""
+static void eb_pm(const double *uh, double *ys, const double *xs, double *xn, long n) {{
+{pm.body}
+}}
+"""
+    body = f"""    double pu[{len(pm.inputs)} * LU];
+    for (int i = 0; i < {len(pm.inputs)}; i++) for (int l = 0; l < LU; l++) pu[i * LU + l] = uh[HY_PMCOL[i] * LU + l];
+    double p[NY];
+    eb_pm(pu, p, xs, xn, n);
+    double x[{d}];
+""" + "\n".join(feats) + kernel_sum_c("HY", d, n, gamma)
+    if residual:
+        body += "\n    for (int j = 0; j < NY; j++) ys[j] = ys[j] + p[j];"
+    consts = {"HY_PMCOL": pm_cols, "HY_MEAN": mean, "HY_SCALE": scale, "HY_X": centres, "HY_ALPHA": alpha,
+              "HY_XN": np.einsum("ij,ij->i", centres, centres),
+              "HY_YMEAN": np.asarray(y_mean, dtype=np.float64).reshape(ny)}
+    clash = sorted(set(consts) & set(pm.constants))
+    if clash:
+        raise _cannot(method, f"its physical model's C step defines {clash[0]} too; please report this")
+    return CModel(method=method, inputs=tuple(inputs[i] for i in used), targets=tuple(targets), u_lags=lu, y_lags=0,
+                  body=body, constants={**pm.constants, **consts}, y_mean=np.zeros(ny), y_std=np.ones(ny),
+                  n_state=int(pm.n_state), prelude=prelude, tolerance=pm.tolerance)
+
+
+def hybrid_c(method: str, fitted: Any) -> CModel:
+    """The C step of a fitted hybrid strategy (``methods/hybrid.py``'s ``HybridFitted``: KRLS with the PM as a
+    feature, on its residual, or both; MTL-KRLS's shared or y-task model) or of ``mtl-krls`` (``MTLFitted``)."""
+    model = getattr(fitted, "model", fitted)
+    strategy = getattr(fitted, "strategy", "shared")
+    is_mtl = hasattr(model, "theta")
+    return pm_kernel_c(method, pm_name=str(getattr(fitted, "pm_name", "") or getattr(model, "pm_name", "")),
+                       pm_params=fitted.pm_params, dt=float(getattr(fitted, "dt", 0.0) or getattr(model, "dt", 0.0)),
+                       targets=tuple(getattr(fitted, "target_names", ()) or getattr(model, "target_names", ())),
+                       inputs=tuple(model.input_names), features=tuple(model.feature_names), scaler=model.scaler,
+                       centres=model.X_train, alpha=model.alpha, gamma=float(model.gamma),
+                       y_mean=model.offset if is_mtl else model.y_mean,
+                       residual=not is_mtl and strategy in ("residual", "residual-feature"))

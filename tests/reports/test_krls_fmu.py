@@ -156,8 +156,14 @@ def test_a_model_stored_without_feature_names_is_refused_in_one_line():
 def test_krls_says_export_fmu_and_its_subclasses_offer_no_krls_c_step():
     from enginebench.c_model import exportable
     from enginebench.cli.methods import export_line
+    from enginebench.methods.krls import KRLS
 
     assert exportable(get("krls")) and export_line(get("krls")).startswith("export: FMU of a static-mode model")
-    for name in ("mtl-krls", "krls-pm", "residual-krls", "hybrid"):
-        assert not exportable(get(name)) and export_line(get(name)).startswith("export: none"), name
+    for name in ("mtl-krls", "krls-pm", "residual-krls", "hybrid"):  # their own C steps (tests/reports/test_hybrid_fmu.py)
+        assert get(name).c_model is not KRLS.c_model and get(name).export_note != KRLS.export_note, name
+
+    class Plain(KRLS):  # predicts otherwise, defines no C step: none
+        name = "plain-krls-subclass"
+
+    assert not exportable(Plain) and export_line(Plain).startswith("export: none")
     assert exportable(get("nfir")) and export_line(get("nfir")).startswith("export: FMU (FMI 2.0")

@@ -59,7 +59,7 @@ def test_c_step_refuses_a_target_it_does_not_model():
 
 def test_pm_offers_a_c_step_only_for_a_model_that_has_one():
     pm = get("pm")()
-    assert pm.c_model({"model": "gas-turbine-tat", "params": {}, "targets": ["tat"], "dt": 1.0}) is None
+    assert pm.c_model({"model": "fmu:thermal", "params": {}, "targets": ["tat"], "dt": 1.0}) is None
     assert pm.c_model({"model": "marine-diesel-pm", "params": DEFAULT_PARAMS}) is None  # fitted before targets/dt
     model = pm.c_model({"model": "marine-diesel-pm", "params": DEFAULT_PARAMS, "targets": [T_INLET], "dt": DT})
     assert model.inputs == (SPEED, RACK) and model.targets == (T_INLET,) and model.n_state == 4
