@@ -187,6 +187,8 @@ def _source_frame(use: FileUse, table: FileTable, spec: ImportSpec) -> tuple[pd.
         ids = use.record.name
     numeric = [c.name for c in spec.schema.columns if c.role in NUMERIC_ROLES]
     _first_row_only(file, frame, numeric, mapping, lines, table.word)
+    if isinstance(ids, str):  # one name for every row: a categorical, not 1e7 copies of the text
+        ids = pd.Categorical.from_codes(np.zeros(n, dtype=np.int8), categories=[ids])
     frame = frame.assign(**{SEGMENT: ids})
     shown = {k: v for k, v in mapping.items() if k != v}
     return frame, lines, shown

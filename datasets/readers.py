@@ -150,7 +150,7 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
     if second.strip():
         first_texts = [f.strip() for f in _fields(second, delim)]
     raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=True)
-    return FileTable(raw, header, np.arange(len(raw)) + 2, "line", {}, first_texts, pos)
+    return FileTable(raw, header, np.arange(2, len(raw) + 2), "line", {}, first_texts, pos)
 
 
 def _parse_fields(file: Path, delim: str, header: list[str], pos: dict[str, int], required: dict[str, str],
@@ -212,7 +212,7 @@ def _read_headerless(file: Path, spec: ImportSpec, required: dict[str, str], tex
         )
     pos = {h: i for i, h in enumerate(header)}
     raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=False)
-    return FileTable(raw, header, np.arange(len(raw)) + 1, "line", {}, first, pos)
+    return FileTable(raw, header, np.arange(1, len(raw) + 1), "line", {}, first, pos)
 
 
 def _field_position(spec: ImportSpec, name: str) -> str:
@@ -289,7 +289,7 @@ def _read_parquet(file: Path, spec: ImportSpec, required: dict[str, str], times:
                 f"{file}, column {t!r}: holds timestamps but time_unit = {spec.time_unit!r}; "
                 'set time_unit = "datetime"'
             )
-    return FileTable(frame, header, np.arange(len(frame)) + 1, "row", _recorded_units(schema), None, pos)
+    return FileTable(frame, header, np.arange(1, len(frame) + 1), "row", _recorded_units(schema), None, pos)
 
 
 def read_file(file: Path, spec: ImportSpec, uses: list[FileUse]) -> FileTable:
