@@ -16,8 +16,16 @@ CPU is this process's CPU time (``time.process_time``: all threads; honest on a 
 ``--repeat``; peak is the rise of the resident set's high-water mark over the step (``/proc/self/clear_refs``
 resets it; n/a where the kernel does not allow it).
 
+identification (``--run-size N``): the README's identification protocol ("Identify your own system": records
+split, init window of 20 samples, 3-fold k-fold selection on the free-run rmse, refit) with ``arx`` and ``narx`` at
+their defaults, on a generated Wiener-Hammerstein record pair at 100 Hz (2 inputs, 1 output: a linear filter, a
+static nonlinearity, another filter, output noise): an estimation record of N samples and a test record of
+``--test-size`` (default N / 10). Printed per phase: writing the CSV files (not part of the work measured), the
+import (``datasets show``), the whole ``run`` (it imports again), and each job's selection, fit and test
+prediction from the run's own timings; wall, CPU and peak resident memory.
+
 Usage: python benchmarks/long_records.py [--sizes 1e4 1e5 1e6] [--full (adds 1e7)] [--repeat 3]
-       [--skip-import] [--skip-arx]
+       [--skip-import] [--skip-arx] [--run-size 1e7 [--test-size 1e6] [--methods arx narx]]
 """
 
 from __future__ import annotations
@@ -116,7 +124,15 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-import", action="store_true")
     ap.add_argument("--skip-arx", action="store_true")
+    ap.add_argument("--run-size", type=float, default=None,
+                    help="identification of an estimation record of this many samples (alone: skips the rest)")
+    ap.add_argument("--test-size", type=float, default=None, help="test record samples (default run size / 10)")
+    ap.add_argument("--methods", nargs="+", default=["arx", "narx"])
     args = ap.parse_args()
+    if args.run_size is not None:
+        n = int(args.run_size)
+        identification(n, int(args.test_size) if args.test_size else max(n // 10, 1000), args.methods)
+        return
     sizes = [int(s) for s in args.sizes] + ([10**7] if args.full and 10**7 not in args.sizes else [])
     print(f"cpus {os.cpu_count()}, load {os.getloadavg()[0]:.1f}; CPU s = process CPU time (best of {args.repeat}), "
           "peak MB = resident high-water rise")
@@ -163,6 +179,71 @@ def main() -> None:
             print(f"{n:>10,} | {a_cpu:>13.2f} {fmt(a_peak):>8} | {build:>12.2f} {r_cpu:>11.2f} {fmt(r_peak):>8} | "
                   f"{a_cpu / r_cpu:>5.2f} | {abs(e_ours - e_ridge) / e_ridge:>14.1e}")
             del Phi, y, train
+
+
+# -- identification of a long record ---------------------------------------------------------------------------
+def wiener_hammerstein(n: int, seed: int) -> pd.DataFrame:
+    """``n`` samples at 100 Hz of a 2-input Wiener-Hammerstein system: band-limited random inputs, a second-order
+    filter of each, a static nonlinearity (tanh plus a square), a first-order output filter, 1 % output noise."""
+    rng = np.random.default_rng(seed)
+    u = scipy.signal.lfilter([0.05], [1, -0.95], rng.normal(size=(n, 2)), axis=0) * 3
+    x = (scipy.signal.lfilter([0, 0.3, 0.1], [1, -1.5, 0.7], u[:, 0])
+         + 0.5 * scipy.signal.lfilter([0, 0.2], [1, -0.8], u[:, 1]))
+    y = scipy.signal.lfilter([0.4], [1, -0.6], np.tanh(x) + 0.3 * x ** 2)
+    y += 0.01 * y.std() * rng.normal(size=n)
+    return pd.DataFrame({"throttle": u[:, 0], "speed": u[:, 1], "T_exh": y})
+
+
+def _phase(label: str, fn: Callable[[], object]) -> object:
+    gc.collect()
+    can = _reset_peak()
+    base = _rss_kib("VmRSS")
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    wall, cpu = time.perf_counter() - w, time.process_time() - c
+    hwm = _rss_kib("VmHWM")
+    peak = f"{(hwm - base) / 1024:.0f}" if can and hwm is not None and base is not None else "n/a"
+    print(f"{label:<34} {wall:>9.1f} {cpu:>9.1f} {peak:>9}   (process RSS after: "
+          f"{(_rss_kib('VmRSS') or 0) / 1024:.0f} MB)", flush=True)
+    return out
+
+
+def identification(n: int, n_test: int, methods: list[str]) -> None:
+    """The README's identification run on an estimation record of ``n`` samples (module docstring)."""
+    from enginebench.api import run
+
+    print(f"identification: estimation record of {n:,} samples, test record of {n_test:,} (100 Hz), methods "
+          f"{', '.join(methods)} at their defaults; cpus {os.cpu_count()}, load {os.getloadavg()[0]:.1f}")
+    print(f"{'phase':<34} {'wall s':>9} {'CPU s':>9} {'peak MB':>9}")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+
+        def write() -> None:
+            wiener_hammerstein(n, 0).to_csv(folder / "estimation.csv", index=False)
+            wiener_hammerstein(n_test, 1).to_csv(folder / "test.csv", index=False)
+
+        _phase("write the CSV files (not measured)", write)
+        (folder / "bench.toml").write_text(
+            'name = "long-bench"\nfiles = ["estimation.csv", "test.csv"]\ndt = 0.01\n[columns]\n'
+            'throttle = { role = "input" }\nspeed = { role = "input" }\nT_exh = { role = "output" }\n',
+            encoding="utf-8")
+        _phase("import (datasets show)", lambda: import_table(folder / "bench.toml"))
+        experiment = {
+            "name": "long-ident", "dataset": str(folder / "bench.toml"), "targets": ["T_exh"], "mode": "simulation",
+            "repetitions": 1, "train_size": 0, "init_samples": 20,
+            "split": {"kind": "records", "train": ["estimation"], "test": ["test"]},
+            "selection": {"kind": "kfold", "folds": 3, "criterion": "rmse"},
+            "methods": {m: {} for m in methods},
+        }
+        result = _phase(f"run ({', '.join(methods)}, 1 worker)",
+                        lambda: run(experiment, workers=1, store=folder / "runs"))
+        jobs = result.jobs()  # type: ignore[attr-defined]
+        for _, job in jobs.iterrows():
+            times = "  ".join(f"{k.removeprefix('time:')} {job[k]:.1f}" for k in jobs.columns
+                              if k.startswith("time:") and pd.notna(job[k]))
+            print(f"  {job['method']:<8} {job['status']:<7} {times}  {job.get('reason') or ''}")
+        table = result.table(metrics=["rmse"])  # type: ignore[attr-defined]
+        print(table[["method", "split", "metric", "mean"]].to_string(index=False))
 
 
 if __name__ == "__main__":

@@ -15,7 +15,8 @@ from enginebench.datasets.schema import Column, Schema
 from enginebench.datasets.splits import make_splits, parse_record_entry
 from enginebench.errors import DataError, SpecError
 from enginebench.experiments.runner import run_experiment
-from enginebench.experiments.selection import edge_warnings, record_blocks
+from enginebench.experiments import selection as selection_module
+from enginebench.experiments.selection import LONG_BLOCK, edge_warnings, record_blocks, scored_pieces
 from enginebench.experiments.spec import from_dict
 from enginebench.method import Method, SegmentPredictions
 from enginebench.registry import register
@@ -227,6 +228,36 @@ def test_kfold_selection_inside_one_estimation_record(recs_file, tmp_path):
     assert [w for w in meta["warnings"] if "edge" in w] == []
     assert [w.split(" (")[0] for w in meta["warnings"]] == [
         "test-probe: no candidate scored better than the training mean on the selection's resamples"]
+
+
+def test_long_validation_blocks_are_scored_on_sub_blocks_spread_over_them():
+    # every block of the built-in experiments is at most LONG_BLOCK samples: scored whole, pieces unchanged
+    short = [(0, 0, 49152), (1, 100, 100 + LONG_BLOCK)]
+    assert scored_pieces(short, 50) == short
+    n = 3_333_333  # a fold of a 1e7-sample record: m = ceil(log2 n) = 22 sub-blocks
+    subs = scored_pieces([(0, 5, 5 + n)], init_samples=20)
+    span = 20 + LONG_BLOCK // 22
+    assert len(subs) == 22 and all(k == 0 and b - a == span for k, a, b in subs)
+    assert subs[0][1] == 5 and subs[-1][2] == 5 + n  # from the block's start to its end
+    gaps = np.diff([a for _, a, _ in subs])
+    assert gaps.min() >= span and gaps.max() - gaps.min() <= 1  # evenly spread, never overlapping
+    assert sum(b - a - 20 for _, a, b in subs) <= LONG_BLOCK  # scored samples: at most LONG_BLOCK a block
+
+
+def test_kfold_selection_scores_long_blocks_on_sub_blocks_each_after_its_init_window(recs_file, tmp_path,
+                                                                                      monkeypatch):
+    monkeypatch.setattr(selection_module, "LONG_BLOCK", 64)  # blocks of 100 samples count as long here
+    SEEN.clear()
+    run_experiment(spec(recs_file, init_samples=10, selection={"kind": "kfold", "folds": 4}),
+                   RunStore(tmp_path / "runs"), workers=1)
+    fits = [s for s in SEEN if s["call"] == "fit"]
+    preds = [s for s in SEEN if s["call"] == "predict"]
+    assert [f["segments"] for f in fits[:3]] == [[300]] * 3 and fits[-1]["segments"] == [400]  # fits unchanged
+    blocks = [p for p in preds if p["init"] == 10 and len(p["lengths"]) > 1]
+    # each fold's block of 100 samples: ceil(log2 100) = 7 sub-blocks of 10 init + 64 // 7 = 9 scored samples
+    assert len(blocks) == 4 * 3
+    assert all(p["lengths"] == [19] * 7 and p["y_init"] == [(10, 1)] * 7 and p["first_row"] == [10] * 7
+               for p in blocks)
 
 
 def test_bootstrap_over_one_record_and_validation_without_a_part_are_refused_early(recs_file, tmp_path):
