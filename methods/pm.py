@@ -117,8 +117,9 @@ class PhysicalModelMethod(Method):
     uses_features = False  # simulated from the raw inputs U
     modes = frozenset({"static", "window", "simulation"})
     summary = "the dataset's physical model"
-    export_note = ("FMU where the dataset's physical model has a C step (marine-diesel's: enginebench export RUN "
-                   "--method pm --fmu OUT.fmu, from a simulation-mode run with --keep-models); none for the others")
+    export_note = ("FMU where the dataset's physical model has a C step (marine-diesel's and gas-turbine-tat's: "
+                   "enginebench export RUN --method pm --fmu OUT.fmu, from a run with --keep-models); none for the "
+                   "others (an import spec's FMU)")
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> dict[str, Any]:
         pm = physical_model(train)

@@ -184,3 +184,47 @@ def test_the_hybrids_say_export_fmu():
 
     for name in HYBRIDS:
         assert exportable(get(name)) and export_line(get(name)).startswith("export: FMU of a static-mode model"), name
+
+
+@needs_gcc
+@pytest.mark.parametrize("strategy", ["feature", "residual", "residual-feature", "task"])
+def test_hybrid_exports_the_strategy_it_selected(strategy):
+    from enginebench.methods.export.harness import run_c
+
+    data = make_samples(turbine(), ["TAT"], "static", 0.0, physical_model=get_physical_model("gas-turbine-tat"))
+    train = data.take(np.arange(data.segment_sizes[0]))
+    test = data.take(np.arange(data.segment_sizes[0], len(data))).without_targets()
+    m = get("hybrid")(**MTL_GRID, strategies=[strategy])
+    params = {"strategy": strategy, "gamma": 0.1, "lambda": 0.01, **({"theta": 1.0} if strategy == "task" else {})}
+    fit = m.fit(train, params, np.random.default_rng(0))
+    assert fit.strategy == strategy
+    (seg,) = test.segments
+    Y, _, _ = run_c(m.c_model(fit), seg.U, np.zeros((1, 1)), 1)
+    pred = m.predict(fit, test)[0]
+    assert np.abs(Y[seg.rows] - pred).max() / np.abs(pred).max() <= 1e-9
+
+
+@pytest.mark.skipif(not (HAVE_GCC and HAVE_FMPY), reason="FMU export needs gcc and fmpy (extra fmu)")
+def test_marine_hybrids_export_with_the_marine_models_states(tmp_path):
+    """The marine-diesel PM's C step has states (lags) and stops its charge-pressure solve otherwise than pm.py:
+    the hybrids' FMUs agree with the run to the PM's own tolerance (1e-8 relative), states started with the
+    segment as the run's simulation of it."""
+    from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.spec import from_dict
+    from enginebench.reports.fmu_export import export_fmu
+    from enginebench.results.store import RunStore
+
+    from ..results.test_model_store import model_file
+    from ..results.test_pm_fmu import T_INLET, marine_records
+
+    path = write_dataset(marine_records(), tmp_path / "marine.parquet")
+    methods = {"residual-krls": GRID, "mtl-krls": MTL_GRID}
+    spec = from_dict({"name": "marine-hybrid-fmu", "dataset": str(path), "targets": [T_INLET], "mode": "static",
+                      "repetitions": 1, "train_size": 0,
+                      "split": {"kind": "records", "train": ["est"], "test": ["val"]},
+                      "selection": {"kind": "none"}, "store": {"models": True}, "methods": methods}, origin="test")
+    run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+    for method in methods:
+        result = export_fmu(model_file(run, method), tmp_path / f"{method}.fmu", run_id=run.id)
+        assert result.ok and result.tolerance == 1e-8 and result.steps == 500, (method, result)
+        print(method, result.max_rel)
