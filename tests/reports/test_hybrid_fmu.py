@@ -228,3 +228,25 @@ def test_marine_hybrids_export_with_the_marine_models_states(tmp_path):
         result = export_fmu(model_file(run, method), tmp_path / f"{method}.fmu", run_id=run.id)
         assert result.ok and result.tolerance == 1e-8 and result.steps == 500, (method, result)
         print(method, result.max_rel)
+
+
+@needs_gcc
+@pytest.mark.parametrize("method, options", [("mtl-krls", {"pm_feature": False}),
+                                             ("krls-pm", {"standardize": False, "center_target": False}),
+                                             ("residual-krls", {"solver": "falkon", "centres": 40})],
+                         ids=["mtl-no-pm-feature", "raw", "falkon"])
+def test_the_c_step_follows_the_options(method, options):
+    from enginebench.methods.export.harness import run_c
+
+    data = make_samples(turbine(), ["TAT"], "static", 0.0, physical_model=get_physical_model("gas-turbine-tat"))
+    train = data.take(np.arange(data.segment_sizes[0]))
+    test = data.take(np.arange(data.segment_sizes[0], len(data))).without_targets()
+    m = get(method)(**HYBRIDS[method], **options)
+    params = {"gamma": 0.1, "lambda": 0.01, **({"theta": 1.0} if method == "mtl-krls" else {})}
+    fit = m.fit(train, params, np.random.default_rng(0))
+    model = m.c_model(fit)
+    assert any(n.startswith("pm:") for n in getattr(fit, "model", fit).feature_names) == (method == "krls-pm")
+    (seg,) = test.segments
+    Y, _, _ = run_c(model, seg.U, np.zeros((1, 1)), 1)
+    pred = m.predict(fit, test)[0]
+    assert np.abs(Y[seg.rows] - pred).max() / np.abs(pred).max() <= 1e-9
