@@ -33,7 +33,7 @@ def _export(**kw) -> None:
 
     load_plugins(kw["plugins"])
     run = RunStore(kw["store"]).get(kw["run_ref"])
-    path = find_model(run.path, run.id, kw["method"], kw.get("target"), kw.get("repetition"))
+    path = find_model(run.path, run.id, kw["method"], kw.get("target"), kw.get("repetition"), kw.get("window"))
     result = export_fmu(path, Path(fmu), timing=kw["timing"], run_id=run.id)
     if kw.get("json_out"):
         click.echo(result_json(result))
@@ -63,7 +63,7 @@ def _export_onnx(kw) -> None:
 
     load_plugins(kw["plugins"])
     run = RunStore(kw["store"]).get(kw["run_ref"])
-    path = find_model(run.path, run.id, kw["method"], kw.get("target"), kw.get("repetition"))
+    path = find_model(run.path, run.id, kw["method"], kw.get("target"), kw.get("repetition"), kw.get("window"))
     result = export_onnx(path, Path(kw["onnx"]), timing=kw["timing"], run_id=run.id)
     if kw.get("json_out"):
         click.echo(result_json(result))
@@ -105,6 +105,8 @@ def _params() -> list[click.Parameter]:
         click.Option(["--method"], default=None, help="With --fmu/--onnx: the method whose stored model is exported."),
         click.Option(["--target"], default=None,
                      help="With --fmu/--onnx: the target, when the method has models of several."),
+        click.Option(["--window"], type=float, default=None, metavar="SECONDS",
+                     help="With --fmu/--onnx: the window (Delta, s), when the method has models of several."),
         click.Option(["--repetition"], type=click.IntRange(min=0), default=None,
                      help="With --fmu/--onnx: the repetition [default: the lowest stored]."),
         click.Option(["--timing"], is_flag=True,

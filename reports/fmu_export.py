@@ -47,8 +47,10 @@ class ExportResult:
         return bool(self.max_rel <= self.tolerance)
 
 
-def find_model(run_path: Path, run_id: str, method: str, target: str | None, repetition: int | None) -> Path:
-    """The stored model of ``method`` (and ``target``, ``repetition``: the lowest one when not given) in a run."""
+def find_model(run_path: Path, run_id: str, method: str, target: str | None, repetition: int | None,
+               window: float | None = None) -> Path:
+    """The stored model of ``method`` (and ``target``, ``window``, ``repetition``: the lowest one when not given) in
+    a run; several targets or windows without a choice are refused (the user names one)."""
     folder = Path(run_path) / MODELS_DIR
     found = []
     for path in sorted(folder.glob("*.npz")) if folder.is_dir() else []:
@@ -73,6 +75,15 @@ def find_model(run_path: Path, run_id: str, method: str, target: str | None, rep
     if len(targets) > 1:
         raise StoreError(f"run {run_id}: method {method!r} stored models of several targets ({', '.join(targets)}); "
                          "choose one with --target")
+    windows = sorted({float(j.get("window", 0.0)) for _, j in mine})
+    if window is not None:
+        mine = [(p, j) for p, j in mine if float(j.get("window", 0.0)) == float(window)]
+        if not mine:
+            raise StoreError(f"run {run_id}: method {method!r} stored no model of window {window:g} s; it stored "
+                             f"{', '.join(f'{w:g} s' for w in windows)}")
+    elif len(windows) > 1:
+        raise StoreError(f"run {run_id}: method {method!r} stored models of several windows "
+                         f"({', '.join(f'{w:g} s' for w in windows)}); choose one with --window")
     if repetition is not None:
         mine = [(p, j) for p, j in mine if j.get("repetition") == repetition]
         if not mine:
