@@ -393,8 +393,7 @@ class PolyNARX(GivenOrders, Method):
     # -- grid ---------------------------------------------------------------------------------
     def search_space(self, data: Samples) -> SearchSpace:
         """Lags (tied na = nb unless given), nk and the polynomial part's output lags."""
-        space: SearchSpace = self.order_space(data, int(self.options["max_lag"]), LAG_BASE[:4] if
-                                              int(self.options["max_lag"]) <= 16 else LAG_BASE, tied="lags")
+        space: SearchSpace = self.order_space(data, int(self.options["max_lag"]), LAG_BASE, tied="lags")
         space["nk"] = np.array(self.given_orders["nk"])
         ky = as_orders(self.options["nonlinear_lags"])
         space["nonlinear_lags"] = np.array(ky if ky is not None else list(NONLINEAR_BASE))
