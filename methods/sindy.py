@@ -76,6 +76,12 @@ DERIVATIVE_SCALES = ("segment", "training")
 """What ``derivative_alpha`` is relative to: each segment's own standard deviation (its derivative then
 depends on the segment alone and is computed once per process), or the training set's (before)."""
 DEFAULT_THRESHOLD_RANGE = {"relative": (1e-2, 0.5), "absolute": (1e-2, 1e3)}
+RELATIVE_THRESHOLD_BOUND = (1e-4, 1.0)
+"""Hard bounds of a relative STLSQ threshold past the grid's edge: below 1e-4 of its unit a threshold drops
+nothing a ridge fit would not, and at 1 it keeps only each equation's largest first-pass term (``threshold_unit``).
+An absolute threshold is in the ODE's own units and has none: its grid keeps the advice to widen it."""
+ALPHA_BOUND = (1e-10, 1e3)
+"""Hard bounds of STLSQ's ridge alpha past the grid's edge (added to the library Gram's diagonal)."""
 """Default STLSQ threshold grids: relative to each derivative's rms, or the turboshaft-moe paper's absolute range."""
 MIN_ROWS = 4
 _PREPARE_OPTIONS = ("derivative", "derivative_solver", "derivative_chunk", "derivative_margin", "derivative_max_iter",
@@ -309,7 +315,8 @@ class SINDy(Method):
         span("threshold_range", None, "STLSQ thresholds searched (log grid); None = (0.01, 0.5) relative or "
              "(1e-2, 1e3) absolute", nullable=True, searches=("threshold",)),
         whole("n_thresholds", 4, "thresholds on the grid", low=1),
-        span("alpha_range", (1e-4, 1e-1), "ridge alphas of STLSQ searched (log grid)", searches=("alpha",)),
+        span("alpha_range", (1e-4, 1e-1), "ridge alphas of STLSQ searched (log grid)", searches=("alpha",),
+             bound=ALPHA_BOUND),
         whole("n_alphas", 3, "alphas on the grid", low=1),
         choice("derivative", "trend_filtered", "how state derivatives are estimated from the samples",
                DERIVATIVE_KINDS),
@@ -346,6 +353,13 @@ class SINDy(Method):
         """The threshold grid's (low, high): the option, or the default of the threshold scale."""
         r = self.options["threshold_range"]
         return DEFAULT_THRESHOLD_RANGE[self.options["threshold_scale"]] if r is None else (float(r[0]), float(r[1]))
+
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """The declared alpha bound, and a relative threshold's (``RELATIVE_THRESHOLD_BOUND``)."""
+        bounds = dict(super().search_bounds(data))
+        if self.options["threshold_scale"] == "relative":
+            bounds["threshold"] = RELATIVE_THRESHOLD_BOUND
+        return bounds
 
     @property
     def derivative_alpha(self) -> float:

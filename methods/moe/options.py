@@ -173,7 +173,7 @@ OPTIONS = Declaration(
          "torch.compile is missing or fails)", message="{name}={value} must be true or false"),
     # the searched hyperparameters' candidates (model selection tries their product, or the ranges they span)
     listing("experts_grid", (2, 3, 4), "numbers of experts searched", items="int", low=1, searches=("n_experts",),
-            message=_grid_message("whole numbers >= 1", "[2, 3, 4]")),
+            bound=(1, 8), message=_grid_message("whole numbers >= 1", "[2, 3, 4]")),
     listing("beta1_grid", (1.0,), "weights of the collaborative loss term searched (seed eq. 4)", items="float",
             low=0, searches=("beta1",), message=_grid_message("numbers >= 0", "[0.1, 1.0]")),
     listing("beta2_grid", (0.1, 1.0), "weights of the competitive loss term searched (seed eq. 4)", items="float",
@@ -184,7 +184,7 @@ OPTIONS = Declaration(
     listing("gate_hidden_grid", (16,), "hidden units of the gate network searched", items="int", low=1,
             searches=("gate_hidden",), message=_grid_message("whole numbers >= 1", "[8, 16, 32]")),
     listing("lr_grid", (1e-3, 1e-2), "Adam learning rates searched", items="float", low=0, low_open=True,
-            searches=("lr",), message=_grid_message("numbers > 0", "[1e-4, 1e-3, 1e-2]")),
+            searches=("lr",), bound=(1e-5, 0.1), message=_grid_message("numbers > 0", "[1e-4, 1e-3, 1e-2]")),
     listing("epochs_grid", None, f"training epochs searched; None = {HYPERPARAMETERS['epochs']}, or on a short "
             f"record as many as give {MIN_GRADIENT_STEPS} gradient steps (epochs x minibatches of batch_size rows)",
             items="int", low=1, nullable=True, searches=("epochs",),

@@ -582,3 +582,10 @@ def test_fit_grid_checkpoints_equal_separate_fits_of_each_epoch_count(train, tes
     assert got[0].loss_history[:2] == got[1].loss_history
     view = test_data.without_targets()
     assert not np.allclose(np.concatenate(method.predict(got[0], view)), np.concatenate(method.predict(got[1], view)))
+
+
+def test_the_number_of_experts_and_the_learning_rate_declare_hard_bounds():
+    from enginebench.methods.moe import MoE
+
+    bounds = MoE().search_bounds(None)
+    assert bounds["n_experts"] == (1, 8) and bounds["lr"] == (1e-5, 0.1) and "beta2" not in bounds

@@ -696,3 +696,12 @@ def test_stlsq_from_the_gram_matrix_equals_pysindys(name):
         np.testing.assert_array_equal(a.coef != 0, b.coef != 0)
         np.testing.assert_allclose(a.coef, b.coef, rtol=1e-4, atol=1e-10 * np.abs(b.coef).max())
         assert gram.describe(a)["equations_raw"] == ref.describe(b)["equations_raw"]
+
+
+def test_a_relative_threshold_and_alpha_declare_the_bounds_their_grids_are_extended_to():
+    from enginebench.methods.sindy import ALPHA_BOUND, RELATIVE_THRESHOLD_BOUND, SINDy
+
+    relative = SINDy().search_bounds(None)
+    assert relative["threshold"] == RELATIVE_THRESHOLD_BOUND == (1e-4, 1.0) and relative["alpha"] == ALPHA_BOUND
+    absolute = SINDy(threshold_scale="absolute").search_bounds(None)
+    assert "threshold" not in absolute and absolute["alpha"] == ALPHA_BOUND  # in the ODE's units: no bound
