@@ -241,7 +241,11 @@ def identification(n: int, n_test: int, methods: list[str]) -> None:
         for _, job in jobs.iterrows():
             times = "  ".join(f"{k.removeprefix('time:')} {job[k]:.1f}" for k in jobs.columns
                               if k.startswith("time:") and pd.notna(job[k]))
-            print(f"  {job['method']:<8} {job['status']:<7} {times}  {job.get('reason') or ''}")
+            picks = ", ".join(f"{k.removeprefix('param:')} {job[k]:g}" for k in jobs.columns
+                              if k.startswith("param:") and pd.notna(job[k]))
+            print(f"  {job['method']:<8} {job['status']:<7} {times}  picks: {picks}  {job.get('reason') or ''}")
+            if job.get("warnings"):
+                print(f"    warnings: {job['warnings']}")
         table = result.table(metrics=["rmse"])  # type: ignore[attr-defined]
         print(table[["method", "split", "metric", "mean"]].to_string(index=False))
 
