@@ -71,7 +71,8 @@ from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
 from enginebench.methods.narx_model import (KernelModel, LinearBasis, MIMOModel, NARXFit, Standardised, free_run,
-                                            mimo_free_run, mimo_regressors, nystroem_ridge, regressors, standardise)
+                                            mimo_free_run, mimo_regressors, nystroem_ridge, regression_count, regressors,
+                                            standardise)
 from enginebench.samples import Samples
 
 NAME = "narx"
@@ -184,20 +185,20 @@ class NARX(GivenOrders, Method):
             ka, kb = self._kernel_lags(na, nb)
             # kernel columns of the full lag matrix: the last ka output lags, the first kb lags of each input
             kcols = list(range(na - ka, na)) + [na + j * nb + l for j in range(c) for l in range(kb)]
+            count = regression_count(std.traj, na, nb, nk)
+            need = 2 + (na + c * nb + 1 if linear else 0)
             for target in range(k):
-                Z, y = regressors(std.traj, target, na, nb, nk)
-                need = 2 + (Z.shape[1] + 1 if linear else 0)
-                if len(y) < need and not strict:
+                if count < need and not strict:
                     for i in members:
                         out[i] = None  # type: ignore[call-overload]
                     break
-                if len(y) < need:
+                if count < need:
                     longest = max(len(tr.Y) for tr in std.traj)
-                    raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {len(y)} regression rows "
+                    raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {count} regression rows "
                                       f"for {need - 1} linear parameters (longest training segment {longest} rows); "
                                       "use fewer lags")
-                rows = self._rows(len(y), rng)
-                Z, y = Z[rows], y[rows]
+                rows = self._rows(count, rng)  # the rows drawn first, then built alone (never the whole lag matrix)
+                Z, y = regressors(std.traj, target, na, nb, nk, None if len(rows) == count else rows)
                 n_rows = len(y)
                 Zk = np.ascontiguousarray(Z[:, kcols])
                 Phi = np.hstack([Z, np.ones((n_rows, 1))]) if linear else None
@@ -241,16 +242,16 @@ class NARX(GivenOrders, Method):
             ka, kb = self._kernel_lags(na, nb)
             kcols = ([p * na + l for p in range(k) for l in range(na - ka, na)]
                      + [k * na + j * nb + l for j in range(c) for l in range(kb)])
-            Z, Y = mimo_regressors(std.traj, na, nb, nk)
-            need = 2 + (Z.shape[1] + 1 if linear else 0)
-            if len(Y) < need:
+            count = regression_count(std.traj, na, nb, nk)
+            need = 2 + (k * na + c * nb + 1 if linear else 0)
+            if count < need:
                 if not strict:
                     continue
-                raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {len(Y)} regression rows "
+                raise MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} leave {count} regression rows "
                                   f"for {need - 1} linear parameters per output (shared kernel over {k} outputs); "
                                   "use fewer lags")
-            rows = self._rows(len(Y), rng)
-            Z, Y = Z[rows], Y[rows]
+            rows = self._rows(count, rng)
+            Z, Y = mimo_regressors(std.traj, na, nb, nk, None if len(rows) == count else rows)
             n_rows = len(Y)
             Zk = np.ascontiguousarray(Z[:, kcols])
             basis = LinearBasis(np.hstack([Z, np.ones((n_rows, 1))])) if linear else None

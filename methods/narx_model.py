@@ -137,20 +137,43 @@ def standardise(traj: list[Trajectory], envelope: float) -> Standardised:
     return Standardised(scaled, y_mean, y_std, u_mean, u_std, Envelope.around(Y, envelope))
 
 
-def regressors(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows z(t) = [y(t-na) .. y(t-1), u_j(t-nk) .. u_j(t-nk-nb+1) per input] and y(t), lags inside each segment."""
+def regression_count(traj: Sequence[Trajectory], na: int, nb: int, nk: int) -> int:
+    """How many regression rows ``regressors`` gives: every sample whose lags lie inside its segment."""
     L = max(na, nk + nb - 1)
-    Z, y = [], []
+    return sum(max(len(tr.Y) - L, 0) for tr in traj)
+
+
+def _row_times(traj: Sequence[Trajectory], L: int, rows: np.ndarray | None):
+    """(segment, its sample indices t) of the regression rows: all of them, or only ``rows`` (sorted indices into
+    the rows of all segments in order), so that a subsample is built without the whole lag matrix."""
+    start = 0
     for tr in traj:
         n = len(tr.Y)
         if n <= L:
             continue
-        t = np.arange(L, n)
+        if rows is None:
+            yield tr, np.arange(L, n)
+        else:
+            lo, hi = np.searchsorted(rows, [start, start + n - L])
+            yield tr, rows[lo:hi] - start + L
+        start += n - L
+
+
+def regressors(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int,
+               rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rows z(t) = [y(t-na) .. y(t-1), u_j(t-nk) .. u_j(t-nk-nb+1) per input] and y(t), lags inside each segment.
+
+    ``rows`` (sorted, into the ``regression_count`` rows): only those rows, equal to the full matrix's rows
+    ``rows`` but built at their cost alone (a 1e7-sample record's full lag matrix would not fit in memory).
+    """
+    L = max(na, nk + nb - 1)
+    Z, y = [], []
+    for tr, t in _row_times(traj, L, rows):
         cols = [tr.Y[t[:, None] - np.arange(na, 0, -1)[None, :], target]]
         for j in range(tr.U.shape[1]):
             cols.append(tr.U[t[:, None] - (nk + np.arange(nb))[None, :], j])
         Z.append(np.hstack(cols))
-        y.append(tr.Y[L:, target])
+        y.append(tr.Y[t, target])
     if not Z:
         return np.empty((0, na + nb * (traj[0].U.shape[1] if traj else 0))), np.empty(0)
     return np.vstack(Z), np.concatenate(y)
@@ -375,24 +398,22 @@ class MIMOModel:
         return self.gamma / self.d / LN2
 
 
-def mimo_regressors(traj: Sequence[Trajectory], na: int, nb: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
+def mimo_regressors(traj: Sequence[Trajectory], na: int, nb: int, nk: int,
+                    rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rows z(t) = [y_p(t-na) .. y_p(t-1) for each output p, u_j(t-nk) .. u_j(t-nk-nb+1) per input] and Y(t) (rows, k).
 
-    With one output this is ``regressors(traj, 0, ...)``.
+    With one output this is ``regressors(traj, 0, ...)``; ``rows`` as there.
     """
     L = max(na, nk + nb - 1)
     Z, Y = [], []
-    for tr in traj:
-        n, k = tr.Y.shape
-        if n <= L:
-            continue
-        t = np.arange(L, n)
+    for tr, t in _row_times(traj, L, rows):
+        k = tr.Y.shape[1]
         lag_rows = t[:, None] - np.arange(na, 0, -1)[None, :]
         cols = [tr.Y[lag_rows, p] for p in range(k)]
         for j in range(tr.U.shape[1]):
             cols.append(tr.U[t[:, None] - (nk + np.arange(nb))[None, :], j])
         Z.append(np.hstack(cols))
-        Y.append(tr.Y[L:])
+        Y.append(tr.Y[t])
     if not Z:
         k = traj[0].Y.shape[1] if traj else 1
         return np.empty((0, k * na + nb * (traj[0].U.shape[1] if traj else 0))), np.empty((0, k))

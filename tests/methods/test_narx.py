@@ -290,3 +290,21 @@ def test_the_linear_basis_solves_like_gelsd_with_full_rank_and_without():
         np.testing.assert_allclose(basis.solve(B), want, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(P.T @ basis.project(B), 0.0, atol=1e-9)
     assert LinearBasis(Phi).full and not LinearBasis(np.hstack([Phi, Phi[:, :1]])).full
+
+
+def test_regressors_at_drawn_rows_equal_those_rows_of_the_whole_lag_matrix():
+    from enginebench.methods.freerun import Trajectory
+    from enginebench.methods.narx_model import mimo_regressors, regression_count, regressors
+
+    rng = np.random.default_rng(0)
+    traj = [Trajectory(f"s{i}", rng.normal(size=(n, 2)), rng.normal(size=(n, 3))) for i, n in enumerate((50, 3, 40, 9))]
+    na, nb, nk = 4, 3, 2
+    count = regression_count(traj, na, nb, nk)
+    Z, y = regressors(traj, 1, na, nb, nk)
+    assert count == len(y) == (50 - 4) + (40 - 4) + (9 - 4)
+    rows = np.sort(rng.choice(count, size=30, replace=False))
+    Zr, yr = regressors(traj, 1, na, nb, nk, rows)
+    assert Zr.tobytes() == Z[rows].tobytes() and yr.tobytes() == y[rows].tobytes()
+    Zm, Ym = mimo_regressors(traj, na, nb, nk)
+    Zmr, Ymr = mimo_regressors(traj, na, nb, nk, rows)
+    assert Zmr.tobytes() == Zm[rows].tobytes() and Ymr.tobytes() == Ym[rows].tobytes()
