@@ -40,7 +40,7 @@ by all outputs (``MIMOModel``): one regressor matrix, one row and centre draw, o
 basis and one kernel factorisation per (orders, gamma), solved for the k outputs as k
 right-hand sides; in the free run one exponent per centre per step serves every output.
 Each output can then read another's past (an emission driven by a temperature); one job
-of k outputs costs about one output's kernel work. Not exported as C yet.
+of k outputs costs about one output's kernel work.
 
 Defaults derived from the data:
 - lags (na = nb, in samples) from {2, 4, 8, 16, 32, 64} where the training data carry them
@@ -427,12 +427,9 @@ class NARX(GivenOrders, Method):
 
     def c_model(self, fitted):
         """The C step of ``fitted`` for an FMU and the real-time figures (``methods/export``)."""
-        from enginebench.methods.export.models import narx_c
+        from enginebench.methods.export.models import narx_c, narx_mimo_c
 
-        if fitted.mimo is not None:
-            raise MethodError(f"method {NAME!r}: a shared-kernel (MIMO) model has no C step yet; export a model of "
-                              "a run with shared_kernel = false (one kernel per output)")
-        return narx_c(fitted)
+        return narx_mimo_c(fitted) if fitted.mimo is not None else narx_c(fitted)
 
     def step_times(self, fitted, data):
         """Its C step timed over ``data`` for the real-time figures (``methods/export/harness.py``)."""

@@ -75,6 +75,39 @@ def narx_c(fitted: Any) -> CModel:
                   lower=fitted.envelope.lower, upper=fitted.envelope.upper)
 
 
+def narx_mimo_c(fitted: Any) -> CModel:
+    """``narx`` with ``shared_kernel``: one kernel on every output's lags and the inputs, its weights shared by the
+    outputs (each its own column of beta), plus each output's linear part on every output's lags, as
+    ``mimo_free_run``."""
+    md = fitted.mimo
+    k, c, d = md.k, md.b.shape[0], int(md.centres.shape[1])
+    consts = {"NM_A": np.asarray(md.a, dtype=np.float64), "NM_B": np.asarray(md.b, dtype=np.float64),
+              "NM_C0": np.asarray(md.c0, dtype=np.float64), "NM_C": np.asarray(md.centres, dtype=np.float64),
+              "NM_BETA": np.asarray(md.beta, dtype=np.float64)}
+    z = [f"yh[{p} * LY + {md.ka - q - 1}]" for p in range(k) for q in range(md.ka)]
+    z += [f"uh[{i} * LU + {md.nk + l}]" for i in range(c) for l in range(md.kb)]
+    body = f"""    const double z[{d}] = {{{", ".join(z)}}};
+    double kern[{k}];
+    for (int o = 0; o < {k}; o++) kern[o] = 0.0;
+    for (int i = 0; i < {len(md.beta)}; i++) {{
+        double dist = 0.0;
+        for (int q = 0; q < {d}; q++) {{ double e = z[q] - NM_C[i * {d} + q]; dist += e * e; }}
+        double w = exp(-{c_double(md.gamma / md.d)} * dist);
+        for (int o = 0; o < {k}; o++) kern[o] += NM_BETA[i * {k} + o] * w;
+    }}
+    for (int o = 0; o < {k}; o++) {{
+        double hist = 0.0;
+        for (int l = 0; l < {md.na}; l++) for (int p = 0; p < {k}; p++) hist += NM_A[(l * {k} + p) * {k} + o] * yh[p * LY + l];
+        double v = 0.0;
+        for (int i = 0; i < {c}; i++) for (int l = 0; l < {md.nb}; l++) v += uh[i * LU + {md.nk} + l] * NM_B[(i * {md.nb} + l) * {k} + o];
+        ys[o] = kern[o] + (hist + (v + NM_C0[o]));
+    }}"""
+    return CModel(method="narx", inputs=tuple(fitted.input_names), targets=tuple(fitted.target_names),
+                  u_lags=md.nk + md.nb, y_lags=md.na, body=body, constants=consts,
+                  u_mean=fitted.u_mean, u_std=fitted.u_std, y_mean=fitted.y_mean, y_std=fitted.y_std,
+                  lower=fitted.envelope.lower, upper=fitted.envelope.upper)
+
+
 def naive_mean_c(fitted: Any) -> CModel:
     """``naive-mean``: the training mean of each target, whatever the inputs (no inputs; the data's targets)."""
     mean = np.asarray(fitted, dtype=np.float64).ravel()

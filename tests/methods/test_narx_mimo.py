@@ -12,7 +12,6 @@ import pytest
 from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.schema import Column, Schema
-from enginebench.errors import MethodError
 from enginebench.method import grid_points
 from enginebench.methods.freerun import training_trajectories
 from enginebench.methods.narx import NARX
@@ -141,11 +140,22 @@ def test_predict_grid_batches_shared_kernel_candidates_like_fit_then_predict(dat
         np.testing.assert_allclose(out[i], one, rtol=0, atol=1e-9)
 
 
-def test_describe_and_export_say_what_the_shared_model_is(shared):
+def test_describe_names_the_shared_model(shared):
     d = NARX(shared_kernel=True).describe(shared)
     assert d["shared_kernel"] is True and d["regressors"] == 2 * 2 + 2 and d["linear_part"]["stable"]
-    with pytest.raises(MethodError, match="shared-kernel \\(MIMO\\) model has no C step yet"):
-        NARX(shared_kernel=True).c_model(shared)
+
+
+def test_the_c_step_of_a_shared_kernel_model_simulates_what_predict_does(data, shared):
+    from enginebench.methods.export.harness import compiler, run_c
+
+    if compiler() is None:
+        pytest.skip("no C compiler (gcc or cc) on this machine")
+    test = data[1].without_targets()
+    model = NARX(shared_kernel=True).c_model(shared)
+    for seg, pred in zip(test.segments, NARX(shared_kernel=True).predict(shared, test)):
+        Y, _, diverged = run_c(model, seg.U, seg.y_init, len(seg.y_init))
+        assert not diverged
+        np.testing.assert_allclose(Y[len(seg.y_init):], pred, rtol=0, atol=1e-9 * np.abs(pred).max())
 
 
 def test_a_shared_kernel_model_is_stored_and_read_back_bit_for_bit(data, shared):
