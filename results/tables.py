@@ -215,13 +215,22 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
         worse = rows[others & (means > base[0])]
         for _, r in worse.iterrows():
             out.append(f"worse than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}; "
-                       f"{r['target']}, Delta {r['window']:g} s, {r['split']}): its settings do not suit these data")
+                       f"{r['target']}, Delta {r['window']:g} s, {r['split']}): {_why_worse(r)}")
         level = rows[others & (means <= base[0]) & (means >= (1.0 - NO_BETTER) * base[0])]
         for _, r in level.iterrows():
             out.append(f"no better than the training mean (within {100 * NO_BETTER:g} %): {r['method']} ({metric} "
                        f"{r['mean']:.4g} vs {base[0]:.4g}; {r['target']}, Delta {r['window']:g} s, {r['split']}): it "
                        "has learnt next to nothing here")
     return out
+
+
+def _why_worse(row: pd.Series) -> str:
+    """Why a method did worse than a constant: its free run diverged (and on how many segments), or its settings."""
+    diverged = row.get("n_diverged", 0)
+    if isinstance(diverged, (int, float, np.integer, np.floating)) and np.isfinite(diverged) and diverged > 0:
+        return (f"its free run diverged on {int(diverged)} of {int(row.get('n_segments', 0))} test segments (left the "
+                "training outputs' envelope; held there and scored): the model is unstable on these inputs")
+    return "its settings do not suit these data"
 
 
 NO_BETTER = 0.02

@@ -407,6 +407,11 @@ def test_a_method_worse_than_the_training_mean_is_named_under_the_table():
         "no better than the training mean (within 2 %): arx (rmse 0.995 vs 1; y, Delta 0 s, test): it has learnt "
         "next to nothing here")
     assert len(worse_than_baseline(level)) == 3
+    unstable = summary.assign(n_diverged=np.where(summary["method"] == "sindy", 2, 0), n_segments=3)
+    assert worse_than_baseline(unstable)[0] == (
+        "worse than the training mean: sindy (rmse 1.5 vs 1; y, Delta 0 s, test): its free run diverged on 2 of 3 "
+        "test segments (left the training outputs' envelope; held there and scored): the model is unstable on these "
+        "inputs")
 
 
 def test_record_patterns_expand_to_the_records_not_named_elsewhere():
