@@ -104,20 +104,37 @@ def term_names(table: np.ndarray, na: int, nb: int, nk: int, inputs: Sequence[st
     return names
 
 
-def lag_rows(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows z(t) = [y(t-1) .. y(t-na), u_j(t-nk) .. u_j(t-nk-nb+1) per input] and y(t), lags inside each segment."""
+def spread(count: int, cap: int) -> np.ndarray | None:
+    """``cap`` indices spread evenly over ``count`` (first and last included), or None when ``count <= cap`` or
+    ``cap`` is 0 (all): a deterministic subsample that keeps a long record's cost bounded."""
+    if cap <= 0 or count <= cap:
+        return None
+    return np.unique(np.round(np.linspace(0, count - 1, cap)).astype(np.int64))
+
+
+def lag_rows(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int, max_rows: int = 0
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Rows z(t) = [y(t-1) .. y(t-na), u_j(t-nk) .. u_j(t-nk-nb+1) per input] and y(t), lags inside each segment;
+    above ``max_rows`` rows (0: no cap) only that many, spread evenly over all segments' rows (``spread``), built
+    alone."""
     L = max(na, nk + nb - 1)
+    keep = spread(sum(max(len(tr.Y) - L, 0) for tr in traj), max_rows)
     Z, y = [], []
+    start = 0
     for tr in traj:
         n = len(tr.Y)
         if n <= L:
             continue
         t = np.arange(L, n)
+        if keep is not None:
+            lo, hi = np.searchsorted(keep, [start, start + n - L])
+            t = keep[lo:hi] - start + L
+        start += n - L
         cols = [tr.Y[t[:, None] - np.arange(1, na + 1)[None, :], target]]
         for j in range(tr.U.shape[1]):
             cols.append(tr.U[t[:, None] - (nk + np.arange(nb))[None, :], j])
         Z.append(np.hstack(cols))
-        y.append(tr.Y[L:, target])
+        y.append(tr.Y[t, target])
     c = traj[0].U.shape[1] if traj else 0
     if not Z:
         return np.empty((0, na + c * nb)), np.empty(0)
@@ -156,9 +173,11 @@ class Sections:
     L: int
 
 
-def sections(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int, horizon: int) -> Sections | None:
+def sections(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int, horizon: int,
+             max_sections: int = 0) -> Sections | None:
     """Sections of L + H samples (H = ``horizon``, less where the shortest usable segment is shorter), stride H;
-    a remainder is covered by one more section ending at the segment's end. None when no segment is usable."""
+    a remainder is covered by one more section ending at the segment's end; above ``max_sections`` (0: no cap)
+    only that many, spread evenly over all of them (``spread``). None when no segment is usable."""
     L = max(na, nk + nb - 1)
     usable = [tr for tr in traj if len(tr.Y) - L >= 2]
     if not usable:
@@ -175,7 +194,9 @@ def sections(traj: Sequence[Trajectory], target: int, na: int, nb: int, nk: int,
         t = np.asarray(starts)[:, None] + np.arange(L, L + H)[None, :]  # (b, H) simulated times
         zs.append(np.concatenate([tr.U[t[..., None] - (nk + np.arange(nb))[None, None, :], j]
                                   for j in range(tr.U.shape[1])], axis=2))
-    return Sections(np.vstack(ys), np.vstack(zs), L)
+    y_all, z_all = np.vstack(ys), np.vstack(zs)
+    keep = spread(len(y_all), max_sections)
+    return Sections(y_all, z_all, L) if keep is None else Sections(y_all[keep], z_all[keep], L)
 
 
 def section_error(theta: np.ndarray, table: np.ndarray, na: int, sec: Sections, gradient: bool
@@ -387,6 +408,10 @@ class PolyNARX(GivenOrders, Method):
         whole("horizon", 500, "samples each training section is simulated over in the refinement", low=2,
               unit="samples"),
         whole("max_iter", 30, "most accepted Levenberg-Marquardt steps of the refinement", low=0),
+        whole("max_rows", 200000, "least-squares rows used: above, this many spread evenly over the training rows "
+              "(0 = all); Silverbox's estimation part has 86,750", low=0, unit="rows"),
+        whole("max_sections", 200, "refinement sections used: above, this many spread evenly over the training "
+              "records (0 = all), so a long record's refinement costs what 100,000 samples cost", low=0),
         ENVELOPE,
     )
 
@@ -446,7 +471,7 @@ class PolyNARX(GivenOrders, Method):
         c = traj[0].U.shape[1]
         degree = int(self.options["degree"])
         table = term_table(na, nb, c, ky, degree)
-        Z, y = lag_rows(traj, target, na, nb, nk)
+        Z, y = lag_rows(traj, target, na, nb, nk, int(self.options["max_rows"]))
         if len(y) < 2 * len(table):
             longest = max(len(tr.Y) for tr in traj)
             return MethodError(f"method {NAME!r}: lags na={na}, nb={nb}, nk={nk} with nonlinear_lags={ky} leave "
@@ -455,7 +480,7 @@ class PolyNARX(GivenOrders, Method):
         theta = least_squares(features(Z, table), y)
         refined, iterations, start, error = False, 0, np.nan, np.nan
         if self.options["refine"] and int(self.options["max_iter"]) > 0:
-            sec = sections(traj, target, na, nb, nk, int(self.options["horizon"]))
+            sec = sections(traj, target, na, nb, nk, int(self.options["horizon"]), int(self.options["max_sections"]))
             if sec is not None:
                 count = sec.y.shape[0] * (sec.y.shape[1] - sec.L)
                 first, _, _ = section_error(theta, table, na, sec, gradient=False)

@@ -185,3 +185,21 @@ def test_divergent_runs_are_held_and_flagged():
 
 def test_passes_check_method_in_simulation_mode():
     check_method(PolyNARX, mode="simulation")
+
+
+def test_row_and_section_caps_keep_rows_spread_evenly_and_built_alone():
+    from enginebench.methods.freerun import Trajectory
+    from enginebench.methods.poly_narx import lag_rows, sections, spread
+
+    rng = np.random.default_rng(5)
+    traj = [Trajectory(f"s{i}", rng.normal(size=(n, 2)), rng.normal(size=(n, 1))) for i, n in enumerate((300, 2, 250))]
+    Z, y = lag_rows(traj, 0, 3, 2, 1)
+    keep = spread(len(y), 40)
+    assert len(keep) == 40 and keep[0] == 0 and keep[-1] == len(y) - 1
+    Zc, yc = lag_rows(traj, 0, 3, 2, 1, max_rows=40)
+    assert Zc.tobytes() == Z[keep].tobytes() and yc.tobytes() == y[keep].tobytes()
+    assert lag_rows(traj, 0, 3, 2, 1, max_rows=len(y))[0].tobytes() == Z.tobytes()  # at or below the cap: all rows
+    full = sections(traj, 0, 3, 2, 1, horizon=20)
+    capped = sections(traj, 0, 3, 2, 1, horizon=20, max_sections=5)
+    sel = spread(len(full.y), 5)
+    assert capped.y.tobytes() == full.y[sel].tobytes() and capped.z_u.tobytes() == full.z_u[sel].tobytes()
