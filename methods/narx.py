@@ -166,6 +166,34 @@ class NARX(GivenOrders, Method):
         cap = int(self.options["kernel_lags"])
         return min(na, cap), min(nb, cap)
 
+    @staticmethod
+    def _by_orders(points: Sequence[tuple[int, int, int, float, float]]) -> dict[tuple[int, int, int], list[int]]:
+        """The points' indices grouped by their orders (na, nb, nk): one regressor build per group."""
+        groups: dict[tuple[int, int, int], list[int]] = {}
+        for i, (na, nb, nk, _, _) in enumerate(points):
+            groups.setdefault((na, nb, nk), []).append(i)
+        return groups
+
+    def _centres(self, Zk: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+        """(centres, solver): every row up to ``exact_max_rows`` rows, else ``centres`` rows drawn with ``rng``."""
+        n = len(Zk)
+        if n <= int(self.options["exact_max_rows"]):
+            return Zk, "exact"
+        return Zk[np.sort(rng.choice(n, size=min(int(self.options["centres"]), n), replace=False))], "nystroem"
+
+    @staticmethod
+    def _solutions(Zk: np.ndarray, y: np.ndarray, C: np.ndarray, basis: LinearBasis | None,
+                   points: Sequence[tuple[int, int, int, float, float]], members: Sequence[int]):
+        """(point, gamma, lambda, beta, theta or None, kernel rank) for each member point of one order group: one
+        kernel factorisation per gamma serves its lambdas (and every column of ``y``)."""
+        gammas = np.array([points[i][3] for i in members])
+        for gamma in dict.fromkeys(gammas.tolist()):
+            idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
+            lams = np.array([points[i][4] for i in idx])
+            betas, thetas, rank = nystroem_ridge(Zk, y, C, gamma / Zk.shape[1], lams * len(y), basis)
+            for pos, (i, lam) in enumerate(zip(idx, lams)):
+                yield i, gamma, float(lam), betas[pos], None if thetas is None else thetas[pos], rank
+
     def _models(self, std: Standardised, k: int, points: Sequence[tuple[int, int, int, float, float]],
                 rng: np.random.Generator, strict: bool = True
                 ) -> tuple[list[list[KernelModel] | None], str, int, dict[str, Any]]:
@@ -178,10 +206,7 @@ class NARX(GivenOrders, Method):
         solver, n_rows, info = "exact", 0, {}
         linear = bool(self.options["linear"])
         c = len(std.u_mean)
-        by_orders: dict[tuple[int, int, int], list[int]] = {}
-        for i, (na, nb, nk, _, _) in enumerate(points):
-            by_orders.setdefault((na, nb, nk), []).append(i)
-        for (na, nb, nk), members in by_orders.items():
+        for (na, nb, nk), members in self._by_orders(points).items():
             ka, kb = self._kernel_lags(na, nb)
             # kernel columns of the full lag matrix: the last ka output lags, the first kb lags of each input
             kcols = list(range(na - ka, na)) + [na + j * nb + l for j in range(c) for l in range(kb)]
@@ -202,25 +227,16 @@ class NARX(GivenOrders, Method):
                 n_rows = len(y)
                 Zk = np.ascontiguousarray(Z[:, kcols])
                 Phi = np.hstack([Z, np.ones((n_rows, 1))]) if linear else None
-                if n_rows > int(self.options["exact_max_rows"]):  # one draw serves every gamma of these regressors
-                    centres = np.sort(rng.choice(n_rows, size=min(int(self.options["centres"]), n_rows), replace=False))
-                    C, solver = Zk[centres], "nystroem"
-                else:
-                    C, solver = Zk, "exact"
+                C, solver = self._centres(Zk, rng)  # one draw serves every gamma of these regressors
                 basis = LinearBasis(Phi) if Phi is not None else None  # one factorisation serves every gamma
-                gammas = np.array([points[i][3] for i in members])
-                for gamma in dict.fromkeys(gammas.tolist()):
-                    idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
-                    lams = np.array([points[i][4] for i in idx])
-                    betas, thetas, rank = nystroem_ridge(Zk, y, C, gamma / Zk.shape[1], lams * n_rows, basis)
+                for i, gamma, lam, beta, theta, rank in self._solutions(Zk, y, C, basis, points, members):
                     info = {"kernel_rank": rank}
-                    for pos, (i, lam) in enumerate(zip(idx, lams)):
-                        th = thetas[pos] if thetas is not None else np.zeros(Z.shape[1] + 1)
-                        out[i][target] = KernelModel(
-                            na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=np.ascontiguousarray(th[:na][::-1]),
-                            b=np.ascontiguousarray(th[na:na + c * nb].reshape(c, nb)), c0=float(th[-1]),
-                            centres=np.ascontiguousarray(C), beta=np.ascontiguousarray(betas[pos]), gamma=gamma,
-                            lam=float(lam), target=target)
+                    th = theta if theta is not None else np.zeros(Z.shape[1] + 1)
+                    out[i][target] = KernelModel(
+                        na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=np.ascontiguousarray(th[:na][::-1]),
+                        b=np.ascontiguousarray(th[na:na + c * nb].reshape(c, nb)), c0=float(th[-1]),
+                        centres=np.ascontiguousarray(C), beta=np.ascontiguousarray(beta), gamma=gamma, lam=lam,
+                        target=target)
         return out, solver, n_rows, info  # type: ignore[return-value]
 
     def _shared(self, k: int) -> bool:
@@ -235,10 +251,7 @@ class NARX(GivenOrders, Method):
         solver, n_rows, info = "exact", 0, {}
         linear = bool(self.options["linear"])
         c = len(std.u_mean)
-        by_orders: dict[tuple[int, int, int], list[int]] = {}
-        for i, (na, nb, nk, _, _) in enumerate(points):
-            by_orders.setdefault((na, nb, nk), []).append(i)
-        for (na, nb, nk), members in by_orders.items():
+        for (na, nb, nk), members in self._by_orders(points).items():
             ka, kb = self._kernel_lags(na, nb)
             kcols = ([p * na + l for p in range(k) for l in range(na - ka, na)]
                      + [k * na + j * nb + l for j in range(c) for l in range(kb)])
@@ -255,24 +268,15 @@ class NARX(GivenOrders, Method):
             n_rows = len(Y)
             Zk = np.ascontiguousarray(Z[:, kcols])
             basis = LinearBasis(np.hstack([Z, np.ones((n_rows, 1))])) if linear else None
-            if n_rows > int(self.options["exact_max_rows"]):
-                centres = np.sort(rng.choice(n_rows, size=min(int(self.options["centres"]), n_rows), replace=False))
-                C, solver = Zk[centres], "nystroem"
-            else:
-                C, solver = Zk, "exact"
-            gammas = np.array([points[i][3] for i in members])
-            for gamma in dict.fromkeys(gammas.tolist()):
-                idx = [members[j] for j in np.flatnonzero(gammas == gamma)]
-                lams = np.array([points[i][4] for i in idx])
-                betas, thetas, rank = nystroem_ridge(Zk, Y, C, gamma / Zk.shape[1], lams * n_rows, basis)
+            C, solver = self._centres(Zk, rng)
+            for i, gamma, lam, beta, theta, rank in self._solutions(Zk, Y, C, basis, points, members):
                 info = {"kernel_rank": rank}
-                for pos, (i, lam) in enumerate(zip(idx, lams)):
-                    th = thetas[pos] if thetas is not None else np.zeros((Z.shape[1] + 1, k))
-                    a = np.stack([th[[p * na + na - lag for p in range(k)]] for lag in range(1, na + 1)])
-                    out[i] = MIMOModel(na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=a,
-                                       b=np.ascontiguousarray(th[k * na:k * na + c * nb].reshape(c, nb, k)),
-                                       c0=np.array(th[-1]), centres=np.ascontiguousarray(C),
-                                       beta=np.ascontiguousarray(betas[pos]), gamma=gamma, lam=float(lam))
+                th = theta if theta is not None else np.zeros((Z.shape[1] + 1, k))
+                a = np.stack([th[[p * na + na - lag for p in range(k)]] for lag in range(1, na + 1)])
+                out[i] = MIMOModel(na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=a,
+                                   b=np.ascontiguousarray(th[k * na:k * na + c * nb].reshape(c, nb, k)),
+                                   c0=np.array(th[-1]), centres=np.ascontiguousarray(C),
+                                   beta=np.ascontiguousarray(beta), gamma=gamma, lam=lam)
         return out, solver, n_rows, info
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> NARXFit:

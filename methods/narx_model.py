@@ -55,14 +55,9 @@ LN2 = math.log(2.0)
 
 # --------------------------------------------------------------------------- fitted model
 @dataclass(frozen=True)
-class KernelModel:
-    """One target's model, standardised: a linear ARX part plus the kernel sum f.
-
-    The linear part reads y(t-1..t-na) (``a[i-1]`` multiplies y(t-i)), u_j(t-nk..t-nk-nb+1)
-    (``b[j, l]`` multiplies u_j(t-nk-l)) and a constant ``c0``; all zero without it. The
-    kernel reads the last ``ka`` outputs and ``kb`` input lags: centres (m, ka + inputs x kb)
-    in the layout [y(t-ka) .. y(t-1), u_1(t-nk) .. u_1(t-nk-kb+1), u_2 ...].
-    """
+class KernelParts:
+    """What a kernel NARX model holds, standardised: lags, a linear ARX part and the kernel sum's centres and
+    coefficients, with its relative gamma and lambda (``KernelModel`` per target, ``MIMOModel`` for all)."""
 
     na: int
     nb: int
@@ -71,15 +66,13 @@ class KernelModel:
     kb: int
     a: np.ndarray
     b: np.ndarray
-    c0: float
+    c0: Any
     centres: np.ndarray
     beta: np.ndarray
     gamma: float
     """Relative gamma; the kernel is exp(-(gamma / d) |z - c|^2)."""
     lam: float
     """Relative lambda; the solve used lambda x rows."""
-    target: int
-    """Column of the target in the fitted model's targets."""
 
     @property
     def d(self) -> int:
@@ -89,6 +82,20 @@ class KernelModel:
     def s(self) -> float:
         """exp(-(gamma/d) D) = 2^(-s D)."""
         return self.gamma / self.d / LN2
+
+
+@dataclass(frozen=True)
+class KernelModel(KernelParts):
+    """One target's model, standardised: a linear ARX part plus the kernel sum f.
+
+    The linear part reads y(t-1..t-na) (``a[i-1]`` multiplies y(t-i)), u_j(t-nk..t-nk-nb+1)
+    (``b[j, l]`` multiplies u_j(t-nk-l)) and a constant ``c0`` (a float); all zero without it. The
+    kernel reads the last ``ka`` outputs and ``kb`` input lags: centres (m, ka + inputs x kb)
+    in the layout [y(t-ka) .. y(t-1), u_1(t-nk) .. u_1(t-nk-kb+1), u_2 ...].
+    """
+
+    target: int
+    """Column of the target in the fitted model's targets."""
 
 
 @dataclass(frozen=True)
@@ -362,7 +369,7 @@ def _retire(H: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray, Ay
 
 # --------------------------------------------------------------------------- one kernel for all outputs
 @dataclass(frozen=True)
-class MIMOModel:
+class MIMOModel(KernelParts):
     """Every output's model on ONE kernel (``shared_kernel = true``), standardised: a MIMO NARX.
 
     Each output reads every output's past. Linear part: ``a[i-1, p, o]`` multiplies y_p(t-i)
@@ -372,30 +379,9 @@ class MIMOModel:
     whose coefficients are the columns of ``beta`` (m, k).
     """
 
-    na: int
-    nb: int
-    nk: int
-    ka: int
-    kb: int
-    a: np.ndarray
-    b: np.ndarray
-    c0: np.ndarray
-    centres: np.ndarray
-    beta: np.ndarray
-    gamma: float
-    lam: float
-
     @property
     def k(self) -> int:
         return self.beta.shape[1]
-
-    @property
-    def d(self) -> int:
-        return self.centres.shape[1]
-
-    @property
-    def s(self) -> float:
-        return self.gamma / self.d / LN2
 
 
 def mimo_regressors(traj: Sequence[Trajectory], na: int, nb: int, nk: int,

@@ -58,6 +58,7 @@ from enginebench.errors import MethodError
 from enginebench.method import Method, Params, SearchSpace, SegmentPredictions
 from enginebench.methods.freerun import (ENVELOPE, Envelope, GivenOrders, Trajectory, as_orders,
                                          check_prediction_inputs, init_window, orders, training_trajectories)
+from enginebench.methods.narx_model import standardise
 from enginebench.samples import Samples
 
 NAME = "poly-narx"
@@ -452,18 +453,6 @@ class PolyNARX(GivenOrders, Method):
         return na, nb, nk, min(ky, na)
 
     # -- fitting ------------------------------------------------------------------------------------
-    def _standardise(self, traj: list[Trajectory]) -> tuple[list[Trajectory], np.ndarray, np.ndarray, np.ndarray,
-                                                            np.ndarray, Envelope]:
-        Y = np.vstack([t.Y for t in traj])
-        U = np.vstack([t.U for t in traj])
-        y_mean = np.array([Y[:, j].mean() for j in range(Y.shape[1])])
-        y_std = np.array([Y[:, j].std() for j in range(Y.shape[1])])
-        u_mean, u_std = U.mean(axis=0), U.std(axis=0)
-        y_std[y_std == 0] = 1.0
-        u_std[u_std == 0] = 1.0
-        scaled = [Trajectory(t.id, (t.U - u_mean) / u_std, (t.Y - y_mean) / y_std) for t in traj]
-        return scaled, y_mean, y_std, u_mean, u_std, Envelope.around(Y, float(self.options["envelope"]))
-
     def _fit_model(self, traj: list[Trajectory], target: int, point: tuple[int, int, int, int]
                    ) -> tuple[PolyModel, int] | MethodError:
         """One target's model at ``point``, or the error saying why the data cannot carry it."""
@@ -501,7 +490,9 @@ class PolyNARX(GivenOrders, Method):
     def _fits(self, train: Samples, points: Sequence[tuple[int, int, int, int]]
               ) -> list[PolyNARXFit | MethodError]:
         """A fit per point (equal points fitted once), or the error of a point the data cannot carry."""
-        traj, y_mean, y_std, u_mean, u_std, env = self._standardise(training_trajectories(NAME, train))
+        std = standardise(training_trajectories(NAME, train), float(self.options["envelope"]))  # as narx's
+        traj, y_mean, y_std, u_mean, u_std = std.traj, std.y_mean, std.y_std, std.u_mean, std.u_std
+        env = std.envelope
         k = len(train.target_names)
         done: dict[tuple[int, int, int, int], PolyNARXFit | MethodError] = {}
         for point in dict.fromkeys(points):
