@@ -24,7 +24,7 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
-from enginebench.errors import DataError, MethodError, SpecError, StoreError
+from enginebench.errors import DataError, EngineBenchError, MethodError, SpecError, StoreError
 from enginebench.results import store as _store
 
 if TYPE_CHECKING:
@@ -273,6 +273,22 @@ def _with_overrides(spec: "ExperimentSpec", overrides: dict[str, Any]) -> "Exper
     return from_dict(d, origin=f"run() overrides ({', '.join(overrides)})")
 
 
+def _refuse_in_worker_import() -> None:
+    """Refuse a run started while a spawned worker process imports the user's script.
+
+    Worker processes start by importing the ``__main__`` script (the "spawn" start method); an
+    unguarded ``run(...)`` at the top of that script would start a run of its own in every worker,
+    each leaving an unfinished run in the store. multiprocessing marks a process still importing
+    its parent's main module with ``_inheriting`` (its own check for this case reads the same flag).
+    """
+    import multiprocessing
+
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise EngineBenchError(
+            "enginebench.api.run was called while a worker process imported your script: put the call under "
+            "`if __name__ == \"__main__\":` (worker processes import the script to start), or pass workers=1")
+
+
 def run(
     experiment: "str | os.PathLike[str] | Mapping[str, Any] | ExperimentSpec",
     *,
@@ -303,6 +319,7 @@ def run(
     from enginebench.registry import load_plugin_file
     from enginebench.results.catalog import check_tags
 
+    _refuse_in_worker_import()
     spec = _with_overrides(_spec_of(experiment), overrides)
     if tags is not None and not isinstance(tags, Mapping):
         raise SpecError(f"tags must be a dict of KEY -> VALUE, not {type(tags).__name__} {_short(tags)}")

@@ -18,6 +18,7 @@ import threading
 import time
 import uuid
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
@@ -71,6 +72,15 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
+WORKER_DIED = (
+    "a worker process died ({exc}); the jobs finished before are stored and `enginebench run --resume RUN` "
+    "computes the rest. From a Python script, call enginebench.api.run under `if __name__ == \"__main__\":` "
+    "(each worker process imports the script), or pass workers=1; otherwise the machine may have run out of memory "
+    "(fewer workers need less)"
+)
+"""Why a local pool broke, and what to do: one line."""
+
+
 def run_local(
     ctx: Context, jobs: Iterable[Job], workers: int, plugins: tuple[str, ...] = (),
 ) -> Iterator[tuple[Job, Any]]:
@@ -97,7 +107,11 @@ def run_local(
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for fut in done:
-                yield fut.result()
+                try:
+                    result = fut.result()
+                except BrokenProcessPool as exc:
+                    raise ExecutorError(WORKER_DIED.format(exc=exc)) from exc
+                yield result
     finally:
         if pending:
             _stop(pool)

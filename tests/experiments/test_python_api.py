@@ -147,3 +147,38 @@ def test_docs_python_md_walk_through_runs(tmp_path, monkeypatch):
     for k, block in enumerate(blocks):
         exec(compile(block, f"docs/python.md block {k + 1}", "exec"), namespace)  # noqa: S102
     assert isinstance(namespace["result"], Run)
+
+
+SCRIPT = """
+from enginebench.api import run
+exp = {{"name": "toy-api", "dataset": {data!r}, "targets": ["y"], "repetitions": 2, "seed": 7, "train_size": 150,
+        "selection": {{"kind": "bootstrap", "resamples": 2}}, "methods": {{"naive-mean": {{}}, "ridge": {{}}}}}}
+{call}
+"""
+
+
+@pytest.mark.parametrize("guarded", [False, True])
+def test_a_script_calling_run_with_workers_needs_the_main_guard_and_says_so(tmp_path, guarded):
+    """Worker processes import the script: unguarded, each would start a run of its own (leaving unfinished runs
+    in the store); the run is refused there in one line, the parent says what to do, and one run is stored."""
+    import subprocess
+    import sys
+
+    data = write_dataset(make_toy(), tmp_path / "toy.parquet")
+    call = f"r = run(exp, store={str(tmp_path / 'store')!r}, workers=2)\nprint('stored', r.id)"
+    if guarded:
+        call = "if __name__ == '__main__':\n    " + call.replace("\n", "\n    ")
+    script = tmp_path / "study.py"
+    script.write_text(SCRIPT.format(data=str(data), call=call))
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    runs = list((tmp_path / "store").iterdir())
+    assert len(runs) == 1, runs
+    if guarded:
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.startswith("stored ")
+        return
+    assert done.returncode != 0
+    assert ("EngineBenchError: enginebench.api.run was called while a worker process imported your script: put the "
+            'call under `if __name__ == "__main__":`') in done.stderr
+    assert "ExecutorError: a worker process died (" in done.stderr
+    assert "call enginebench.api.run under `if __name__ == \"__main__\":`" in done.stderr
