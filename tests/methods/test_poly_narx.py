@@ -15,7 +15,7 @@ from enginebench.errors import MethodError
 from enginebench.method import grid_points
 from enginebench.methods.freerun import Trajectory
 from enginebench.methods.poly_narx import (PolyNARX, features, lag_rows, least_squares, refine, section_error,
-                                           sections, term_names, term_table)
+                                           sections, select_monomials, term_names, term_table)
 from enginebench.testing import check_method
 from helpers import sim_samples
 
@@ -203,3 +203,51 @@ def test_row_and_section_caps_keep_rows_spread_evenly_and_built_alone():
     capped = sections(traj, 0, 3, 2, 1, horizon=20, max_sections=5)
     sel = spread(len(full.y), 5)
     assert capped.y.tobytes() == full.y[sel].tobytes() and capped.z_u.tobytes() == full.z_u[sel].tobytes()
+
+
+def _greedy_reference(Phi: np.ndarray, y: np.ndarray, always: np.ndarray, penalty: float) -> np.ndarray:
+    """Forward selection written out with a least-squares refit per candidate, then the criterion's minimum."""
+    n = len(y)
+    kept = list(np.flatnonzero(always))
+    left = list(np.flatnonzero(~always))
+
+    def rss(cols: list) -> float:
+        theta, *_ = np.linalg.lstsq(Phi[:, cols], y, rcond=None)
+        r = y - Phi[:, cols] @ theta
+        return float(r @ r)
+
+    path = [rss(kept)]
+    order = []
+    while left:
+        best = min(left, key=lambda c: rss(kept + order + [c]))
+        order.append(best)
+        left.remove(best)
+        path.append(rss(kept + order))
+    crit = n * np.log(np.array(path) / n) + penalty * (len(kept) + np.arange(len(path)))
+    keep = always.copy()
+    keep[order[:int(np.argmin(crit))]] = True
+    return keep
+
+
+@pytest.mark.parametrize("rule", ["aic", "bic"])
+def test_forward_selection_of_monomials_equals_a_refit_per_candidate_reference(rule):
+    rng = np.random.default_rng(4)
+    n = 1500
+    Phi = np.column_stack([np.ones(n), rng.standard_normal((n, 3)), rng.standard_normal((n, 8)) ** 2])
+    always = np.arange(12) < 4
+    y = Phi[:, :4] @ [0.3, 1.0, -0.5, 0.2] + 0.4 * Phi[:, 6] - 0.25 * Phi[:, 9] + 0.1 * rng.standard_normal(n)
+    keep = select_monomials(Phi, y, always, rule)
+    np.testing.assert_array_equal(keep, _greedy_reference(Phi, y, always, np.log(n) if rule == "bic" else 2.0))
+    assert keep[6] and keep[9] and keep[:4].all()
+    if rule == "bic":  # no candidate without a true coefficient passes BIC's penalty here
+        np.testing.assert_array_equal(np.flatnonzero(keep), [0, 1, 2, 3, 6, 9])
+    assert select_monomials(Phi, y, always, "all").all()
+
+
+def test_terms_all_keeps_every_monomial_and_aic_the_true_ones():
+    raw = poly_raw()
+    every = PolyNARX(terms="all").fit(sim_samples(raw), PARAMS, np.random.default_rng(0))
+    chosen = PolyNARX().fit(sim_samples(raw), PARAMS, np.random.default_rng(0))
+    assert len(every.models[0].theta) == len(term_table(2, 2, 1, 2, 3))
+    names = set(PolyNARX().describe(chosen)["targets"]["y"]["terms"])
+    assert {"y(t-1)^2", "y(t-1)^3", "y(t-1)*y(t-2)^2"} <= names
