@@ -68,13 +68,14 @@ def _device(value: Any) -> Any:
     return value
 
 
-def declaration(state_meaning: str, hidden_meaning: str) -> Declaration:
-    """The options both methods share; ``state_meaning`` and ``hidden_meaning`` say what nx and hidden are."""
+def declaration(state_meaning: str, hidden_meaning: str, lags_per_state: int = 2) -> Declaration:
+    """The options both methods share; ``state_meaning`` and ``hidden_meaning`` say what nx and hidden are,
+    ``lags_per_state`` the default encoder window per state (the class's ``lags_per_state``)."""
     return Declaration(
         anything("nx", None, state_meaning + "; a list is searched by model selection", check=_sizes,
                  unit="states", type_label="int >= 1 | list[int] | None", searches=("nx",), edges="high"),
         whole("lags", None, "encoder window: measured inputs and outputs before the start that set the initial "
-              "state; None = 2 nx, at most a quarter of the shortest training record", low=1, nullable=True,
+              f"state; None = {lags_per_state} nx, at most a quarter of the shortest training record", low=1, nullable=True,
               unit="samples"),
         whole("horizon", None, f"length T of the training subsections (free-run loss); None = {HORIZON_SAMPLES}, "
               "at most half the longest training record's fitting part", low=1, nullable=True, unit="samples"),
@@ -230,6 +231,8 @@ class NeuralSimulator(Method):
     joint_targets = True  # one network for every target: nx grows with them, the loss sums their standardised errors
     state_per_target: ClassVar[int] = 4
     max_state: ClassVar[int] = 16
+    lags_per_state: ClassVar[int] = 2
+    """``lags = None``: this many encoder samples per state, at most a quarter of the shortest record."""
 
     # -- to override ------------------------------------------------------------------------
     def network(self, config: NetConfig) -> nn.Module:
@@ -277,7 +280,7 @@ class NeuralSimulator(Method):
         k, c = len(train.target_names), len(train.input_names)
         nx = self._nx(params, k)
         shortest = min(len(t.Y) for t in traj)
-        lags = int(o["lags"]) if o["lags"] is not None else max(1, min(2 * nx, shortest // 4))
+        lags = int(o["lags"]) if o["lags"] is not None else max(1, min(self.lags_per_state * nx, shortest // 4))
         val_fraction = float(o["val_fraction"])
         longest_fit = max(len(t.Y) - int(math.floor(val_fraction * len(t.Y))) for t in traj)
         if longest_fit < 2:

@@ -120,7 +120,7 @@ def test_a_joint_neural_state_space_job_simulates_every_target_from_one_network(
     run = run_experiment(spec(path, methods={"neural-ss": options}), RunStore(tmp_path / "runs"), workers=1).run
     metas = run.job_metas()
     assert [m["target"] for m in metas.values()] == [JOINT]
-    assert [m["params"]["nx"] for m in metas.values()] == [8]  # 4 states per target, two targets
+    assert [m["params"]["nx"] for m in metas.values()] == [16]  # 8 states per target, two targets (at most 16)
     m = run.metrics()
     test_rmse = m[(m["metric"] == "rmse") & (m["split"] == "test")]
     assert sorted(test_rmse["target"]) == ["y1", "y2"]

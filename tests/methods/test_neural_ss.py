@@ -116,5 +116,5 @@ def test_options_are_checked_with_one_line_naming_them():
         GRU(nx=0)
     with pytest.raises(MethodError, match="val_fraction"):
         NeuralSS(val_fraction=0.7)
-    assert NeuralSS().search_space(_samples([(np.zeros(50), np.zeros(50))]))["nx"].tolist() == [4]
+    assert NeuralSS().search_space(_samples([(np.zeros(50), np.zeros(50))]))["nx"].tolist() == [8]
     assert NeuralSS(nx=[2, 6]).search_space(_samples([(np.zeros(50), np.zeros(50))]))["nx"].tolist() == [2, 6]
