@@ -235,6 +235,11 @@ def one_line_reason(exc: BaseException, limit: int = 300) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+SELECTED_PREFIX = "selected_"
+"""Job-level metric rows ``selected_<criterion>``: the selected point's mean validation score (``results.summary``
+puts it beside the test metric of the same name, as ``selected_score``)."""
+
+
 def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Run one job; failures become a 'failed' record with the reason, never an exception.
 
@@ -263,6 +268,9 @@ def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:
         rows.append({**base, "split": "-", "metric": "failed", "value": float("nan")})
     for name, value in timings.items():
         rows.append({**base, "split": "-", "metric": f"time_{name}", "value": value})
+    score = (meta.get("search") or {}).get("best_score") if meta.get("status") == "ok" else None
+    if isinstance(score, float) and np.isfinite(score):  # the selected point's validation score, beside its test one
+        rows.append({**base, "split": "-", "metric": f"{SELECTED_PREFIX}{spec.selection.criterion}", "value": score})
     frame = pd.DataFrame(rows)
     frame["status"] = meta["status"]
     if problem.coordinates:

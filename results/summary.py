@@ -25,7 +25,7 @@ from enginebench.results.stats import bootstrap_interval, describe, holm, identi
 
 KEYS = ["dataset", "target", "mode", "window", "method", "split"]
 SUMMARY_COLUMNS = KEYS + ["metric", "mean", "ci_low", "ci_high", "sd", "median", "iqr", "n_repeats", "n_failed",
-                          "interval", "n_diverged", "n_segments", "note"]
+                          "interval", "n_diverged", "n_segments", "note", "selected_score"]
 BASELINE = "naive-mean"
 SKILL_OF = ("mae", "rmae")
 IDENTICAL_NOTE = "identical repetitions: every repetition gave the same value, so there is no interval"
@@ -99,7 +99,7 @@ def summarize(metrics: pd.DataFrame, interval: str = "t", level: float = 0.95, s
             _, low, high = bootstrap_interval(v, fallback, level=level)
             low, high, kind = min(low, mean), max(high, mean), "bootstrap"  # an interval holds its mean
         d = describe(v)
-        rows.append((*key, mean, low, high, d["sd"], d["median"], d["iqr"], len(v), 0, kind, 0, 0, note))
+        rows.append((*key, mean, low, high, d["sd"], d["median"], d["iqr"], len(v), 0, kind, 0, 0, note, np.nan))
     out = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
     if not failed.empty:
         out = pd.concat([out, _all_failed_rows(out, failed, interval)], ignore_index=True)
@@ -109,8 +109,28 @@ def summarize(metrics: pd.DataFrame, interval: str = "t", level: float = 0.95, s
     if len(counts) and len(out):
         out = out.drop(columns=["n_diverged", "n_segments"]).merge(counts, on=KEYS, how="left")
         out[["n_diverged", "n_segments"]] = out[["n_diverged", "n_segments"]].fillna(0).astype(int)
-    out = out[SUMMARY_COLUMNS]
+    out = _with_selected_scores(out, metrics)[SUMMARY_COLUMNS]
     return out.sort_values(["target", "window", "split", "method", "metric"], kind="stable").reset_index(drop=True)
+
+
+def _with_selected_scores(out: pd.DataFrame, metrics: pd.DataFrame) -> pd.DataFrame:
+    """``selected_score`` on the rows whose metric is the selection's criterion: the selected point's validation
+    score (job rows ``selected_<criterion>``), averaged over the successful repetitions; nan elsewhere.
+
+    Beside the test mean it tells a model that selection already found poor from one that scored well on
+    the validation blocks and not on the test records (``results.tables``' notes say which).
+    """
+    prefix = "selected_"
+    rows = metrics[(metrics["status"] == "ok") & (metrics["split"] == "-")
+                   & metrics["metric"].astype(str).str.startswith(prefix)]
+    if rows.empty or out.empty:
+        return out
+    keys = KEYS[:-1]
+    scores = (rows.assign(metric=rows["metric"].astype(str).str[len(prefix):])
+              .groupby(keys + ["metric"], sort=False, dropna=False)["value"].mean().rename("score").reset_index())
+    merged = out.merge(scores, on=keys + ["metric"], how="left")
+    merged["selected_score"] = merged["score"].astype(float)
+    return merged.drop(columns="score")
 
 
 def _all_failed_rows(out: pd.DataFrame, failed: pd.Series, interval: str) -> pd.DataFrame:
@@ -128,7 +148,7 @@ def _all_failed_rows(out: pd.DataFrame, failed: pd.Series, interval: str) -> pd.
         others = out[(out[block] == pd.Series(dict(zip(block, key[:4])))).all(axis=1)] if len(out) else out
         cells = others[["split", "metric"]].drop_duplicates().itertuples(index=False) if len(others) else [("test", "mae")]
         for split, metric in cells:
-            rows.append((*key, split, metric, *[float("nan")] * 6, 0, 0, interval, 0, 0, ""))
+            rows.append((*key, split, metric, *[float("nan")] * 6, 0, 0, interval, 0, 0, "", float("nan")))
     return pd.DataFrame(rows, columns=SUMMARY_COLUMNS).astype(out.dtypes.to_dict()) if rows else out.iloc[:0]
 
 

@@ -215,7 +215,7 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
         worse = rows[others & (means > base[0])]
         for _, r in worse.iterrows():
             out.append(f"worse than the training mean: {r['method']} ({metric} {r['mean']:.4g} vs {base[0]:.4g}; "
-                       f"{r['target']}, Delta {r['window']:g} s, {r['split']}): {_why_worse(r)}")
+                       f"{r['target']}, Delta {r['window']:g} s, {r['split']}): {_why_worse(r, base[0])}")
         level = rows[others & (means <= base[0]) & (means >= (1.0 - NO_BETTER) * base[0])]
         for _, r in level.iterrows():
             out.append(f"no better than the training mean (within {100 * NO_BETTER:g} %): {r['method']} ({metric} "
@@ -224,12 +224,23 @@ def worse_than_baseline(summary: pd.DataFrame) -> list[str]:
     return out
 
 
-def _why_worse(row: pd.Series) -> str:
-    """Why a method did worse than a constant: its free run diverged (and on how many segments), or its settings."""
+def _why_worse(row: pd.Series, base: float) -> str:
+    """Why a method did worse than a constant (``base``, the mean's error): its free run diverged (and on how many
+    segments); or its selected point was already no better than that on the validation blocks; or it was, and
+    the model fitted on all training data does not carry over to the evaluated records; or (no selection
+    score) its settings."""
     diverged = row.get("n_diverged", 0)
     if isinstance(diverged, (int, float, np.integer, np.floating)) and np.isfinite(diverged) and diverged > 0:
         return (f"its free run diverged on {int(diverged)} of {int(row.get('n_segments', 0))} test segments (left the "
                 "training outputs' envelope; held there and scored): the model is unstable on these inputs")
+    chosen = row.get("selected_score", np.nan)
+    if isinstance(chosen, (float, np.floating)) and np.isfinite(chosen):
+        if chosen >= base:
+            return (f"its selected point scored {chosen:.4g} on the validation blocks, no better than the training "
+                    "mean does here: no setting searched suits these data")
+        return (f"its selected point scored {chosen:.4g} on the validation blocks, {row['mean']:.4g} here: fitted on "
+                "all training data it does not carry over to these records (`enginebench table RUN --folds` lists "
+                "every point's fold scores)")
     return "its settings do not suit these data"
 
 
