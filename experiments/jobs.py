@@ -26,6 +26,7 @@ from enginebench.experiments.spec import ExperimentSpec
 from enginebench.method import Method
 from enginebench.results.job_files import SELECTION_META
 from enginebench.results.metrics import compute_metrics, mean_abs, per_segment
+from enginebench.results.summary import SELECTED_PREFIX
 from enginebench.samples import Samples
 
 
@@ -233,11 +234,6 @@ def one_line_reason(exc: BaseException, limit: int = 300) -> str:
     """``Type: message`` on one line, cut to ``limit`` characters (a failed job's reason as tables show it)."""
     text = " ".join(f"{type(exc).__name__}: {exc}".split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-SELECTED_PREFIX = "selected_"
-"""Job-level metric rows ``selected_<criterion>``: the selected point's mean validation score (``results.summary``
-puts it beside the test metric of the same name, as ``selected_score``)."""
 
 
 def run_job(ctx: Context, job: Job) -> tuple[pd.DataFrame, dict[str, Any]]:

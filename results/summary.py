@@ -30,6 +30,9 @@ BASELINE = "naive-mean"
 SKILL_OF = ("mae", "rmae")
 IDENTICAL_NOTE = "identical repetitions: every repetition gave the same value, so there is no interval"
 CROSSED_NOTE = "interval crosses the metric's bound"
+SELECTED_PREFIX = "selected_"
+"""Job-level metric rows ``selected_<criterion>`` (split "-"): the selected point's mean validation score, which
+``summarize`` puts beside the test metric of the same name as ``selected_score``."""
 
 
 def with_skill(ok: pd.DataFrame) -> pd.DataFrame:
@@ -120,7 +123,7 @@ def _with_selected_scores(out: pd.DataFrame, metrics: pd.DataFrame) -> pd.DataFr
     Beside the test mean it tells a model that selection already found poor from one that scored well on
     the validation blocks and not on the test records (``results.tables``' notes say which).
     """
-    prefix = "selected_"
+    prefix = SELECTED_PREFIX
     rows = metrics[(metrics["status"] == "ok") & (metrics["split"] == "-")
                    & metrics["metric"].astype(str).str.startswith(prefix)]
     if rows.empty or out.empty:
