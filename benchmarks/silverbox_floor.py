@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import sys
 
 import numpy as np
 from enginebench.api import open_run
 from enginebench.datasets import catalog
+from enginebench.errors import EngineBenchError
 
 FIR_LAGS = 64
 
@@ -54,8 +56,12 @@ def main() -> None:
     parser.add_argument("--block", type=int, default=4000, help="block length for error vs amplitude (default 4000)")
     args = parser.parse_args()
 
-    run = open_run(args.run, store=args.store)
-    data = catalog.load("silverbox", columns=["V1", "V2"]).frame
+    try:
+        run = open_run(args.run, store=args.store)
+        data = catalog.load("silverbox", columns=["V1", "V2"]).frame
+    except EngineBenchError as exc:  # a run or dataset not found: one line, exit 2 as the CLI does
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     u_all = data["V1"].to_numpy()
     y_all = data["V2"].to_numpy()
 
@@ -74,7 +80,8 @@ def main() -> None:
             start = _locate(y_all, t)
         errors[method] = pred["prediction"].to_numpy()[:args.samples] - t
     if truth is None or start is None:
-        raise SystemExit("no test predictions of V2 in this run: run `enginebench run silverbox` first")
+        print("error: no test predictions of V2 in this run: run `enginebench run silverbox` first", file=sys.stderr)
+        raise SystemExit(2)
     lagged_u = _input_before(u_all, start, len(truth))
 
     print(f"Silverbox, first {len(truth)} evaluated test samples (dataset rows {start}..{start + len(truth) - 1})")

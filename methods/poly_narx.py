@@ -188,8 +188,9 @@ def select_monomials(Phi: np.ndarray, y: np.ndarray, always: np.ndarray, rule: s
     n = len(y)
     Q, _ = np.linalg.qr(Phi[:, always])
     r = y - Q @ (Q.T @ y)
-    C = Phi[:, candidates] - Q @ (Q.T @ Phi[:, candidates])
-    floor = 1e-20 * np.maximum(np.einsum("ij,ij->j", Phi[:, candidates], Phi[:, candidates]), 1e-300)
+    raw = Phi[:, candidates]
+    floor = 1e-20 * np.maximum(np.einsum("ij,ij->j", raw, raw), 1e-300)
+    C = raw - Q @ (Q.T @ raw)
     open_ = np.ones(len(candidates), dtype=bool)
     rss, order = [float(r @ r)], []
     while True:
