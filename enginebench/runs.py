@@ -315,6 +315,7 @@ def run(
     Every finished job is stored at once, as with ``enginebench run``: an interrupted run keeps what
     it finished, and ``enginebench run --resume RUN`` finishes it.
     """
+    from enginebench.experiments.executors import WorkerDied
     from enginebench.experiments.runner import run_experiment
     from enginebench.registry import load_plugin_file
     from enginebench.results.catalog import check_tags
@@ -333,18 +334,29 @@ def run(
         load_plugin_file(path)
     store_obj = _store.RunStore(store)
     options = dict(workers=workers, plugins=paths, executor=executor, scheduler=scheduler, tags=tag_map)
-    if callable(progress):
-        result = run_experiment(spec, store_obj, progress=progress, **options)
-    elif progress:
-        from enginebench.cli.progress import JobProgress
-
-        name = spec.name
-        with JobProgress(f"{name}: preparing", lambda job: f"{name}: last done {job.method} r{job.repetition}", False,
-                         running=f"{name}: running",
-                         running_label=lambda job: f"{name}: running {job.method} {job.target} r{job.repetition}"
-                         ) as bar:
-            result = run_experiment(spec, store_obj, progress=bar, **options)
-            bar.describe(f"{name}: done")
-    else:
-        result = run_experiment(spec, store_obj, **options)
+    try:
+        result = _run_with_progress(run_experiment, spec, store_obj, progress, options)
+    except WorkerDied as exc:
+        raise WorkerDied(f"{exc}. From a Python script, call enginebench.api.run under "
+                         "`if __name__ == \"__main__\":` (each worker process imports the script), or pass workers=1"
+                         ) from exc.__cause__
     return Run(result.run.path)
+
+
+def _run_with_progress(run_experiment: Callable[..., Any], spec: ExperimentSpec, store_obj: Any,
+                       progress: bool | Callable[[int, int, Any], None], options: dict[str, Any]) -> Any:
+    """run_experiment with ``progress`` as api.run takes it: a callable, a bar on stderr (True), or nothing."""
+    if callable(progress):
+        return run_experiment(spec, store_obj, progress=progress, **options)
+    if not progress:
+        return run_experiment(spec, store_obj, **options)
+    from enginebench.cli.progress import JobProgress
+
+    name = spec.name
+    with JobProgress(f"{name}: preparing", lambda job: f"{name}: last done {job.method} r{job.repetition}", False,
+                     running=f"{name}: running",
+                     running_label=lambda job: f"{name}: running {job.method} {job.target} r{job.repetition}"
+                     ) as bar:
+        result = run_experiment(spec, store_obj, progress=bar, **options)
+        bar.describe(f"{name}: done")
+    return result

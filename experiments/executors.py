@@ -72,13 +72,15 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
+class WorkerDied(ExecutorError):
+    """A local pool's worker process died (killed for memory, or failing at start): one line saying what to do."""
+
+
 WORKER_DIED = (
     "a worker process died ({exc}); the jobs finished before are stored and `enginebench run --resume RUN` "
-    "computes the rest. From a Python script, call enginebench.api.run under `if __name__ == \"__main__\":` "
-    "(each worker process imports the script), or pass workers=1; otherwise the machine may have run out of memory "
-    "(fewer workers need less)"
+    "computes the rest; the machine may have run out of memory (fewer workers, `-j`, need less)"
 )
-"""Why a local pool broke, and what to do: one line."""
+"""Why a local pool broke, and what to do: one line (enginebench.api.run adds a script's own cause)."""
 
 
 def run_local(
@@ -110,7 +112,7 @@ def run_local(
                 try:
                     result = fut.result()
                 except BrokenProcessPool as exc:
-                    raise ExecutorError(WORKER_DIED.format(exc=exc)) from exc
+                    raise WorkerDied(WORKER_DIED.format(exc=exc)) from exc
                 yield result
     finally:
         if pending:

@@ -217,3 +217,35 @@ def test_usage_errors_are_one_error_line(runner):
                           "'html'; see 'cli table --help'\n")
     out = runner.invoke(cli, ["runs"])  # a group alone still shows its help
     assert "Usage: " in out.output and "Commands:" in out.output
+
+
+KILLER_PLUGIN = '''
+import os
+import numpy as np
+from enginebench.method import Method
+
+class Killer(Method):
+    """Ends its worker process, as the kernel's out-of-memory killer would."""
+    name = "killer"
+    family = "baseline"
+    def fit(self, train, params, rng):
+        os._exit(9)
+    def predict(self, fitted, data):
+        return [np.zeros((len(s), 1)) for s in data.segments]
+'''
+
+
+def test_a_worker_that_dies_is_one_line_naming_memory_and_resume(runner, tmp_path, toy_parquet):
+    """A killed worker process (BrokenProcessPool) is one error line with exit 2 that says what to do from the
+    command line; the Python script's main guard, which only enginebench.api.run's callers need, is not in it."""
+    plugin = tmp_path / "killer.py"
+    plugin.write_text(KILLER_PLUGIN)
+    exp = tmp_path / "exp.toml"
+    exp.write_text(f'dataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 60\n'
+                   '[selection]\nkind = "none"\n[methods.killer]\n')
+    out = runner.invoke(cli, ["run", str(exp), "-j", "2", "-q", "--plugin", str(plugin)])
+    assert out.exit_code == 2, out.output
+    line = out.output.strip()
+    assert line.startswith("error: a worker process died (") and "\n" not in line
+    assert line.endswith("; the jobs finished before are stored and `enginebench run --resume RUN` computes the "
+                         "rest; the machine may have run out of memory (fewer workers, `-j`, need less)")

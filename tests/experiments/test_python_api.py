@@ -180,5 +180,6 @@ def test_a_script_calling_run_with_workers_needs_the_main_guard_and_says_so(tmp_
     assert done.returncode != 0
     assert ("EngineBenchError: enginebench.api.run was called while a worker process imported your script: put the "
             'call under `if __name__ == "__main__":`') in done.stderr
-    assert "ExecutorError: a worker process died (" in done.stderr
-    assert "call enginebench.api.run under `if __name__ == \"__main__\":`" in done.stderr
+    assert "WorkerDied: a worker process died (" in done.stderr
+    assert ("(fewer workers, `-j`, need less). From a Python script, call enginebench.api.run under "
+            "`if __name__ == \"__main__\":`") in done.stderr
