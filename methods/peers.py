@@ -49,16 +49,24 @@ import numpy as np
 from enginebench.declare import Declaration, choice, whole
 from enginebench.errors import MethodError
 from enginebench.method import Method, Params, SearchSpace, SegmentPredictions
-from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, check_prediction_inputs,
-                                         derived_orders, init_window, orders, padded_past, training_trajectories)
+from enginebench.methods.freerun import (ENVELOPE, Envelope, Trajectory, as_orders, carried_order,
+                                         check_prediction_inputs, derived_orders, init_window, orders, padded_past,
+                                         training_trajectories)
 from enginebench.samples import Samples
 
 INSTALL = 'pip install "enginebench[peers]"'
 INFO_CRITERIA = ("aic", "aicc", "bic", "fpe", "lilc")
 LAG_LADDER = (1, 2, 4, 6, 8, 10)
 """``sysidentpy-narx``'s lags (ylag = xlag) searched by default, within what the data carry."""
+LAG_BOUND = 32
+"""The most lags model selection extends ``sysidentpy-narx``'s grid to when the best lags sit at its top (within what
+the data carry): past it even degree 2 has over 2,000 FROLS candidates with one input, the default
+``max_candidates``."""
 ORDER_LADDER = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
 """``n4sid``'s state orders searched by default, within what the data carry."""
+ORDER_BOUND = 64
+"""The highest state order model selection extends ``n4sid``'s grid to when the best order sits at its top (within
+what the data carry: ``N4SID._infeasible``)."""
 
 
 class Infeasible(MethodError):
@@ -266,6 +274,12 @@ class SysIdentPyNARX(PeerMethod):
                                   f"samples) or a tenth of the {sum(sizes)} training rows per parameter is less")
         return {"degree": np.array(self._degrees), "lags": np.array(lags)}
 
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """Lags from 1 to what the data carry (``derived_orders``' rules) within ``LAG_BOUND``: a best lags at the
+        grid's top is searched further, as SysIdentPy's users would, instead of left to a "widen" warning."""
+        sizes = [len(s) for s in data.segments] or [0]
+        return {"lags": (1.0, float(max(carried_order(min(sizes), sum(sizes), len(data.input_names), LAG_BOUND), 1)))}
+
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> SysIdentPyFit:
         """FROLS per target on the concatenated standardised training segments. ``rng`` is not drawn from."""
         from sysidentpy.basis_function import Polynomial
@@ -430,6 +444,15 @@ class N4SID(PeerMethod):
             else:
                 self.note_skipped(f"order {order} left out: {reason}")
         return {"order": np.array(kept or [min(ORDER_LADDER)])}
+
+    def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
+        """Orders from 1 to the highest the data carry (``_infeasible``) within ``ORDER_BOUND``: a best order at
+        the grid's top is searched further instead of left to a "widen" warning."""
+        sizes = [len(s) for s in data.segments] or [0]
+        n = self._samples_used(sizes)
+        m, k = len(data.input_names), max(1, len(data.target_names))
+        top = next((o for o in range(ORDER_BOUND, 0, -1) if self._infeasible(o, n, m, k) is None), 1)
+        return {"order": (1.0, float(top))}
 
     def _samples_used(self, sizes: Sequence[int]) -> int:
         """How many samples ``_fit_orders`` hands nfoursid: all, or at most ``max_samples`` of the longest segment."""

@@ -277,3 +277,56 @@ def test_a_criterion_still_falling_at_n_info_values_is_a_job_warning(data):
     roomy = SysIdentPyNARX(n_info_values=7)  # all 7 candidates (1 + 3 signals x 2 lags): the criterion rises at 6
     d = roomy.describe(roomy.fit(train, {"degree": 1, "lags": 2}, np.random.default_rng(0)))
     assert d["targets"]["y"]["n_terms"] < 7 and "warnings" not in d
+
+
+def _long_memory_records(tmp_path, taps: int):
+    """An estimation and a validation record of a FIR response shaped as a half sine over ``taps`` samples: no
+    low-order ARX compresses it, so fewer lags than ``taps`` leave part of the response out."""
+    import pandas as pd
+
+    from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+    from enginebench.datasets.io import write_dataset
+    from enginebench.datasets.schema import Column, Schema
+
+    rng = np.random.default_rng(3)
+    frames = []
+    for name, n in (("est", 1200), ("val", 600)):
+        u = rng.normal(size=n)
+        h = np.sin(np.pi * np.arange(1, taps + 1) / (taps + 1))
+        y = scipy.signal.lfilter(np.r_[0.0, h], [1.0], u) + 0.01 * rng.normal(size=n)
+        frames.append(pd.DataFrame({SEGMENT: name, TIME: np.arange(n) * 0.01, "u": u, "y": y}))
+    ds = Dataset("long-memory", pd.concat(frames, ignore_index=True),
+                 Schema((Column("u", "input", "V"), Column("y", "output", "V"))), 0.01, {"provenance": "test"})
+    return write_dataset(ds, tmp_path / "long-memory.parquet")
+
+
+@needs_sysidentpy
+def test_sysidentpy_narx_lags_best_at_the_ladders_top_are_searched_further(tmp_path):
+    """Issue 30: a peer's grid is extended like the built-in methods' (a response 16 samples long needs lags >= 16,
+    past the ladder's 10), so its run ends at the lags the data ask for, not with "widen the grid"."""
+    from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.spec import from_dict
+    from enginebench.results.store import RunStore
+
+    path = _long_memory_records(tmp_path, 16)
+    train = sim_samples(linear_raw(1, 1200))  # one record of 1,200 samples and 2 inputs: a quarter is 300
+    assert SysIdentPyNARX().search_bounds(train) == {"lags": (1.0, float(peers.LAG_BOUND))}
+    spec = from_dict({"name": "peer-extension", "dataset": str(path), "targets": ["y"], "mode": "simulation",
+                      "repetitions": 1, "train_size": 0, "init_samples": 20,
+                      "split": {"kind": "records", "train": ["est"], "test": ["val"]},
+                      "selection": {"kind": "kfold", "folds": 2, "criterion": "rmse"},
+                      "methods": {"sysidentpy-narx": {"degrees": [1]}}}, origin="test")
+    run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+    meta = run.job_meta(run.job_files()[0].stem)
+    assert meta["status"] == "ok"
+    assert int(meta["params"]["lags"]) >= 16, meta["params"]
+    assert not any("widen" in w for w in meta.get("warnings", [])), meta.get("warnings")
+
+
+@needs_nfoursid
+def test_n4sid_bound_is_the_highest_order_the_data_carry():
+    """The extension's bound for n4sid's order: the highest order whose Hankel matrices the samples fill, within
+    ORDER_BOUND (900 samples, 2 inputs, 1 output: 75 block rows need 4 x 75 x 3 = 900; order 50 has 75)."""
+    assert N4SID().search_bounds(sim_samples(linear_raw(3, 300))) == {"order": (1.0, 50.0)}
+    assert N4SID().search_bounds(sim_samples(linear_raw(1, 5000))) == {"order": (1.0, float(peers.ORDER_BOUND))}
+    assert N4SID(block_rows=4).search_bounds(sim_samples(linear_raw(1, 5000))) == {"order": (1.0, 4.0)}
