@@ -3,8 +3,9 @@ how often each searched hyperparameter was picked at an edge of its grid; whethe
 were finished by other code than created it.
 
 ``run_note_lines(run)`` is the one list every view of a run shows (the end of ``run``,
-``runs show``, ``table``, the static and the interactive report); ``note_lines`` and
-``edge_note_lines`` and ``resume_note_lines`` are its parts.
+``runs show``, ``table``, the static and the interactive report); ``note_lines``,
+``edge_note_lines``, ``resume_note_lines`` and ``coverage_note_lines`` (evaluated records whose
+inputs leave the training range) are its parts.
 """
 
 from __future__ import annotations
@@ -101,6 +102,33 @@ def resume_note_lines(info: dict[str, Any], environment: dict[str, Any]) -> list
     return lines
 
 
+def coverage_note_lines(info: dict[str, Any]) -> list[str]:
+    """One line per (input, part) whose evaluated records leave the training range (run.json's ``input_coverage``,
+    ``experiments/coverage.py``), naming the record most outside, e.g. ``inputs beyond the training range: Force
+    in 1 of 2 test records (most: Level4, 31 % of its rows outside the training's [-5.2, 5.1], reaching 0.42 of
+    that span past it): every model extrapolates there``. Runs made before the record was kept say nothing."""
+    coverage = info.get("input_coverage")
+    if not isinstance(coverage, dict) or not isinstance(coverage.get("outside"), list):
+        return []
+    totals = coverage.get("records") or {}
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for entry in coverage["outside"]:
+        if isinstance(entry, dict):
+            groups.setdefault((str(entry.get("input")), str(entry.get("part"))), []).append(entry)
+    lines = []
+    for (name, part), entries in groups.items():
+        worst = max(entries, key=lambda e: (float(e.get("fraction", 0.0)), float(e.get("reach") or 0.0)))
+        records = {(e.get("split"), e.get("segment")) for e in entries}
+        reach = worst.get("reach")
+        how_far = (f", reaching {reach:.2g} of that span past it" if isinstance(reach, (int, float))
+                   else " (constant in training)")
+        lines.append(f"inputs beyond the training range: {name} in {len(records)} of {totals.get(part, '?')} {part} "
+                     f"records (most: {worst.get('segment')}, {100 * float(worst.get('fraction', 0.0)):.0f} % of its "
+                     f"rows outside the training's [{float(worst.get('low')):.4g}, {float(worst.get('high')):.4g}]"
+                     f"{how_far}): a model fitted on the training records extrapolates there")
+    return lines
+
+
 def _edge_warning(text: str) -> tuple[str, str] | None:
     """(method, hyperparameter) of a job's edge warning ("krls: gamma = 1e+04 selected at the upper edge ..."),
     None for any other warning."""
@@ -112,8 +140,8 @@ def _edge_warning(text: str) -> tuple[str, str] | None:
 
 
 def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
-    """Every note on a stored run's jobs: failure reasons and job warnings with their counts
-    (``note_lines``), then the run-level grid-edge notes (``edge_note_lines``).
+    """Every note on a stored run: resumes with other code, inputs beyond the training range, failure reasons and
+    job warnings with their counts (``note_lines``), then the run-level grid-edge notes (``edge_note_lines``).
 
     A reason or warning longer than ``width`` characters is cut with "..." (None: whole).
     A job's warning about an edge pick (``experiments.selection.edge_warnings``) is left out where the
@@ -130,5 +158,6 @@ def run_note_lines(run: _NotedRun, width: int | None = None) -> list[str]:
     covered = {(m, rest.split(" at the ", 1)[0]) for m, rest in (line.split(": ", 2)[1:3] for line in edges)}
     notes = {**notes, "warnings": {(m, t): n for (m, t), n in notes.get("warnings", {}).items()
                                    if _edge_warning(t) not in covered}}  # each edge pick said once: the edge note
-    return (resume_note_lines(run.info(), run.environment()) + note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
+    info = run.info()
+    return (resume_note_lines(info, run.environment()) + coverage_note_lines(info) + note_lines({kind: {(m, short(t)): n for (m, t), n in found.items()} for kind, found in notes.items()})
             + edges)

@@ -1,0 +1,74 @@
+"""Evaluated records whose inputs leave the training range are named once under every view of a run (the
+F-16's level-4 force: a model that is fine on level 2 diverges there)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
+from enginebench.datasets.io import write_dataset
+from enginebench.datasets.pools import RawSegments, SegmentArrays
+from enginebench.datasets.schema import Column, Schema
+from enginebench.experiments.coverage import input_coverage
+from enginebench.results.notes import coverage_note_lines
+
+
+def _raw(*segments: tuple[str, np.ndarray]) -> RawSegments:
+    segs = tuple(SegmentArrays(id=sid, U=U, Y=np.zeros((len(U), 1)), t=np.arange(len(U), dtype=float), Z=None)
+                 for sid, U in segments)
+    return RawSegments(segments=segs, inputs=("a", "b"), outputs=("y",), internals=(), dt=1.0, units={}, dataset="d")
+
+
+def test_a_record_is_named_where_enough_rows_lie_past_the_margin():
+    ramp = np.linspace(0.0, 1.0, 1001)
+    train = _raw(("t0", np.column_stack([ramp, ramp])), ("t1", np.column_stack([ramp[::-1], 2 * ramp])))
+    inside = np.column_stack([ramp, ramp])  # a: [0, 1], b: [0, 2] in training
+    past = inside.copy()
+    past[:100, 0] = 1.2  # 10 % of the rows 0.2 spans past a's maximum
+    spike = inside.copy()
+    spike[:5, 0] = 3.0  # 0.5 % of the rows: under MIN_FRACTION
+    grazing = inside.copy()
+    grazing[:, 1] = 2.08  # every row, 0.04 spans of b past its maximum: inside the 5 % margin
+    coverage = input_coverage({"s": {"train": train, "test": _raw(("in", inside), ("past", past), ("spike", spike),
+                                                                   ("grazing", grazing))}})
+    assert coverage["records"] == {"test": 4}
+    [entry] = coverage["outside"]
+    assert entry == {"split": "s", "part": "test", "segment": "past", "input": "a", "fraction": 100 / 1001,
+                     "reach": entry["reach"], "low": 0.0, "high": 1.0}
+    assert np.isclose(entry["reach"], 0.2)
+
+
+def test_the_note_names_the_record_most_outside():
+    info = {"input_coverage": {"records": {"test": 2}, "outside": [
+        {"split": "s", "part": "test", "segment": "L4", "input": "Force", "fraction": 0.31, "reach": 0.42,
+         "low": -5.2, "high": 5.1}]}}
+    assert coverage_note_lines(info) == [
+        "inputs beyond the training range: Force in 1 of 2 test records (most: L4, 31 % of its rows outside the "
+        "training's [-5.2, 5.1], reaching 0.42 of that span past it): a model fitted on the training records "
+        "extrapolates there"]
+    assert coverage_note_lines({}) == []  # runs made before the record was kept
+
+
+def test_a_run_says_which_test_record_extrapolates(tmp_path):
+    from enginebench.experiments.runner import run_experiment
+    from enginebench.experiments.spec import from_dict
+    from enginebench.results.notes import run_note_lines
+    from enginebench.results.store import RunStore
+
+    rng = np.random.default_rng(0)
+    frames = []
+    for name, scale in (("est", 1.0), ("low", 0.8), ("high", 3.0)):
+        u = np.clip(rng.normal(size=400), -2.5, 2.5) * scale
+        frames.append(pd.DataFrame({SEGMENT: name, TIME: np.arange(400.0), "u": u, "y": 0.5 * u}))
+    ds = Dataset("amp", pd.concat(frames, ignore_index=True),
+                 Schema((Column("u", "input", "N"), Column("y", "output", "m"))), 1.0, {"provenance": "test"})
+    path = write_dataset(ds, tmp_path / "amp.parquet")
+    spec = from_dict({"name": "cov", "dataset": str(path), "targets": ["y"], "mode": "simulation", "repetitions": 1,
+                      "train_size": 0, "init_samples": 5, "split": {"kind": "records", "train": ["est"],
+                                                                     "test": ["low", "high"]},
+                      "selection": {"kind": "none"}, "methods": {"naive-mean": {}}}, origin="test")
+    run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+    [line] = [x for x in run_note_lines(run) if x.startswith("inputs beyond")]
+    assert line.startswith("inputs beyond the training range: u in 1 of 2 test records (most: high, ")
+    assert "of its rows outside the training's [-2.5, 2.5], reaching 1 of that span past it)" in line  # 3 x 2.5 = 7.5: 5 past 2.5, a span
