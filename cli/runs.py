@@ -91,7 +91,7 @@ def runs_show(run_ref: str, store) -> None:
              f"methods {', '.join(map(str, rec.get('methods', [])))})" for rec in plugins]
     click.echo(note_text(head, hang="  "), nl=False)
     if notes:
-        click.echo("\nwhat the jobs said (distinct failure reasons and warnings, with counts):")
+        click.echo("\nnotes (the data, and what the jobs said: distinct failure reasons and warnings, with counts):")
         click.echo(note_text(notes, indent="  "), nl=False)
     if metrics is None:
         click.echo("\nno finished job yet")
