@@ -103,26 +103,28 @@ def resume_note_lines(info: dict[str, Any], environment: dict[str, Any]) -> list
 
 
 def coverage_note_lines(info: dict[str, Any]) -> list[str]:
-    """One line per (input, part) whose evaluated records leave the training range (run.json's ``input_coverage``,
-    ``experiments/coverage.py``), naming the record most outside, e.g. ``inputs beyond the training range: Force
-    in 1 of 2 test records (most: Level4, 31 % of its rows outside the training's [-5.2, 5.1], reaching 0.42 of
-    that span past it): every model extrapolates there``. Runs made before the record was kept say nothing."""
+    """One line per (input or output, part) whose evaluated records leave the training range (run.json's
+    ``input_coverage``, ``experiments/coverage.py``), naming the record most outside, e.g. ``inputs beyond the
+    training range: Force in 1 of 2 test records (most: Level4, 31 % of its rows outside the training's
+    [-5.2, 5.1], reaching 0.42 of that span past it): a model fitted on the training records extrapolates
+    there``. Runs made before the record was kept say nothing."""
     coverage = info.get("input_coverage")
     if not isinstance(coverage, dict) or not isinstance(coverage.get("outside"), list):
         return []
     totals = coverage.get("records") or {}
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     for entry in coverage["outside"]:
         if isinstance(entry, dict):
-            groups.setdefault((str(entry.get("input")), str(entry.get("part"))), []).append(entry)
+            key = (str(entry.get("role", "input")), str(entry.get("column")), str(entry.get("part")))
+            groups.setdefault(key, []).append(entry)
     lines = []
-    for (name, part), entries in groups.items():
+    for (role, name, part), entries in sorted(groups.items(), key=lambda kv: kv[0][0] != "input"):
         worst = max(entries, key=lambda e: (float(e.get("fraction", 0.0)), float(e.get("reach") or 0.0)))
         records = {(e.get("split"), e.get("segment")) for e in entries}
         reach = worst.get("reach")
         how_far = (f", reaching {reach:.2g} of that span past it" if isinstance(reach, (int, float))
                    else " (constant in training)")
-        lines.append(f"inputs beyond the training range: {name} in {len(records)} of {totals.get(part, '?')} {part} "
+        lines.append(f"{role}s beyond the training range: {name} in {len(records)} of {totals.get(part, '?')} {part} "
                      f"records (most: {worst.get('segment')}, {100 * float(worst.get('fraction', 0.0)):.0f} % of its "
                      f"rows outside the training's [{float(worst.get('low')):.4g}, {float(worst.get('high')):.4g}]"
                      f"{how_far}): a model fitted on the training records extrapolates there")

@@ -34,14 +34,14 @@ def test_a_record_is_named_where_enough_rows_lie_past_the_margin():
                                                                    ("grazing", grazing))}})
     assert coverage["records"] == {"test": 4}
     [entry] = coverage["outside"]
-    assert entry == {"split": "s", "part": "test", "segment": "past", "input": "a", "fraction": 100 / 1001,
+    assert entry == {"split": "s", "part": "test", "segment": "past", "column": "a", "role": "input", "fraction": 100 / 1001,
                      "reach": entry["reach"], "low": 0.0, "high": 1.0}
     assert np.isclose(entry["reach"], 0.2)
 
 
 def test_the_note_names_the_record_most_outside():
     info = {"input_coverage": {"records": {"test": 2}, "outside": [
-        {"split": "s", "part": "test", "segment": "L4", "input": "Force", "fraction": 0.31, "reach": 0.42,
+        {"split": "s", "part": "test", "segment": "L4", "column": "Force", "role": "input", "fraction": 0.31, "reach": 0.42,
          "low": -5.2, "high": 5.1}]}}
     assert coverage_note_lines(info) == [
         "inputs beyond the training range: Force in 1 of 2 test records (most: L4, 31 % of its rows outside the "
@@ -71,4 +71,7 @@ def test_a_run_says_which_test_record_extrapolates(tmp_path):
     run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
     [line] = [x for x in run_note_lines(run) if x.startswith("inputs beyond")]
     assert line.startswith("inputs beyond the training range: u in 1 of 2 test records (most: high, ")
-    assert "of its rows outside the training's [-2.5, 2.5], reaching 1 of that span past it)" in line  # 3 x 2.5 = 7.5: 5 past 2.5, a span
+    assert "of its rows outside the training's [-2.5, 2.5], reaching 1 of that span past it)" in line
+    [line] = [x for x in run_note_lines(run) if x.startswith("outputs beyond")]  # y = u / 2: the output too
+    assert line.startswith("outputs beyond the training range: y in 1 of 2 test records (most: high, ")
+    assert "outside the training's [-1.25, 1.25], reaching 1 of that span past it)" in line  # 3 x 2.5 = 7.5: 5 past 2.5, a span
