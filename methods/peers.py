@@ -64,6 +64,9 @@ the data carry): past it even degree 2 has over 2,000 FROLS candidates with one 
 ``max_candidates``."""
 ORDER_LADDER = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
 """``n4sid``'s state orders searched by default, within what the data carry."""
+DEGREE_BOUND = 3
+"""``sysidentpy-narx``'s highest polynomial degree: its documentation's examples use 2, some 3, and past 3 FROLS's
+candidate set outgrows ``max_candidates`` at all but the smallest lags."""
 ORDER_BOUND = 64
 """The highest state order model selection extends ``n4sid``'s grid to when the best order sits at its top (within
 what the data carry: ``N4SID._infeasible``)."""
@@ -276,9 +279,11 @@ class SysIdentPyNARX(PeerMethod):
 
     def search_bounds(self, data: Samples) -> dict[str, tuple[float | None, float | None]]:
         """Lags from 1 to what the data carry (``derived_orders``' rules) within ``LAG_BOUND``: a best lags at the
-        grid's top is searched further, as SysIdentPy's users would, instead of left to a "widen" warning."""
+        grid's top is searched further, as SysIdentPy's users would, instead of left to a "widen" warning. The
+        degree's bound is ``DEGREE_BOUND`` (or the highest degree asked for): a best degree 3 is said to be at it."""
         sizes = [len(s) for s in data.segments] or [0]
-        return {"lags": (1.0, float(max(carried_order(min(sizes), sum(sizes), len(data.input_names), LAG_BOUND), 1)))}
+        lags = float(max(carried_order(min(sizes), sum(sizes), len(data.input_names), LAG_BOUND), 1))
+        return {"lags": (1.0, lags), "degree": (1.0, float(max(DEGREE_BOUND, *self._degrees)))}
 
     def fit(self, train: Samples, params: Params, rng: np.random.Generator) -> SysIdentPyFit:
         """FROLS per target on the concatenated standardised training segments. ``rng`` is not drawn from."""

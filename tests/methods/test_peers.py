@@ -310,7 +310,8 @@ def test_sysidentpy_narx_lags_best_at_the_ladders_top_are_searched_further(tmp_p
 
     path = _long_memory_records(tmp_path, 16)
     train = sim_samples(linear_raw(1, 1200))  # one record of 1,200 samples and 2 inputs: a quarter is 300
-    assert SysIdentPyNARX().search_bounds(train) == {"lags": (1.0, float(peers.LAG_BOUND))}
+    assert SysIdentPyNARX().search_bounds(train) == {"lags": (1.0, float(peers.LAG_BOUND)), "degree": (1.0, 3.0)}
+    assert SysIdentPyNARX(degrees=[2, 4]).search_bounds(train)["degree"] == (1.0, 4.0)  # never below the grid
     spec = from_dict({"name": "peer-extension", "dataset": str(path), "targets": ["y"], "mode": "simulation",
                       "repetitions": 1, "train_size": 0, "init_samples": 20,
                       "split": {"kind": "records", "train": ["est"], "test": ["val"]},
