@@ -50,10 +50,10 @@ def test_the_note_names_the_record_most_outside():
     assert coverage_note_lines({}) == []  # runs made before the record was kept
 
 
-def test_a_run_says_which_test_record_extrapolates(tmp_path):
+def _amplitude_run(tmp_path):
+    """A run trained on a unit-amplitude record and tested on one at the same and one at three times the amplitude."""
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import from_dict
-    from enginebench.results.notes import run_note_lines
     from enginebench.results.store import RunStore
 
     rng = np.random.default_rng(0)
@@ -68,10 +68,39 @@ def test_a_run_says_which_test_record_extrapolates(tmp_path):
                       "train_size": 0, "init_samples": 5, "split": {"kind": "records", "train": ["est"],
                                                                      "test": ["low", "high"]},
                       "selection": {"kind": "none"}, "methods": {"naive-mean": {}}}, origin="test")
-    run = run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+    return run_experiment(spec, RunStore(tmp_path / "runs"), workers=1).run
+
+
+def test_a_run_says_which_test_record_extrapolates(tmp_path):
+    from enginebench.results.notes import run_note_lines
+
+    run = _amplitude_run(tmp_path)
     [line] = [x for x in run_note_lines(run) if x.startswith("inputs beyond")]
     assert line.startswith("inputs beyond the training range: u in 1 of 2 test records (most: high, ")
-    assert "of its rows outside the training's [-2.5, 2.5], reaching 1 of that span past it)" in line
+    assert "of its rows outside the training's [-2.5, 2.5], reaching 1 of that span past it)" in line  # 7.5 - 2.5 = 5
     [line] = [x for x in run_note_lines(run) if x.startswith("outputs beyond")]  # y = u / 2: the output too
     assert line.startswith("outputs beyond the training range: y in 1 of 2 test records (most: high, ")
-    assert "outside the training's [-1.25, 1.25], reaching 1 of that span past it)" in line  # 3 x 2.5 = 7.5: 5 past 2.5, a span
+    assert "outside the training's [-1.25, 1.25], reaching 1 of that span past it)" in line
+
+
+def test_table_runs_show_and_the_reports_carry_the_note(tmp_path):
+    """Every view of the run says it once: `table`, `runs show`, index.html and report.html."""
+    import html
+
+    from click.testing import CliRunner
+
+    from enginebench.cli.main import cli
+
+    run = _amplitude_run(tmp_path)
+    store = str(tmp_path / "runs")
+    runner = CliRunner()
+    start = "inputs beyond the training range: u in 1 of 2 test records (most: high, "
+    for args in (["table", run.id], ["runs", "show", run.id]):
+        out = runner.invoke(cli, [*args, "--store", store])
+        assert out.exit_code == 0, out.output
+        assert sum(start in x for x in out.output.splitlines()) == 1, out.output
+    out = runner.invoke(cli, ["report", run.id, "--store", store, "-o", str(tmp_path / "rep")])
+    assert out.exit_code == 0, out.output
+    for page in ("index.html", "report.html"):
+        text = html.unescape((tmp_path / "rep" / page).read_text())
+        assert start in text, page
