@@ -51,7 +51,7 @@ def test_the_note_names_the_record_most_outside():
 
 
 def _amplitude_run(tmp_path):
-    """A run trained on a unit-amplitude record and tested on one at the same and one at three times the amplitude."""
+    """A run trained on a unit-amplitude record and tested on one at 0.8 and one at three times that amplitude."""
     from enginebench.experiments.runner import run_experiment
     from enginebench.experiments.spec import from_dict
     from enginebench.results.store import RunStore
