@@ -160,14 +160,20 @@ class Breaker(Warner):
 '''
 
 
-def test_table_and_runs_show_list_failure_reasons_and_warnings(runner, tmp_path, toy_parquet):
-    """Issue 12 item 6: the reasons are in view under every table, not only inside job files."""
-    plugin = tmp_path / "noisy.py"
-    plugin.write_text(NOISY_PLUGIN)
+def _run_with_plugin(runner, tmp_path, toy_parquet, source: str, methods: list[str], workers: int = 1):
+    """`enginebench run` of a two-repetition toy experiment with ``methods``, the plugin file written from ``source``;
+    (the plugin's path, the CLI result)."""
+    plugin = tmp_path / "plugin.py"
+    plugin.write_text(source)
     exp = tmp_path / "exp.toml"
     exp.write_text(f'dataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 60\n'
-                   '[selection]\nkind = "none"\n[methods.naive-mean]\n[methods.warner]\n[methods.breaker]\n')
-    out = runner.invoke(cli, ["run", str(exp), "-j", "1", "-q", "--plugin", str(plugin)])
+                   '[selection]\nkind = "none"\n' + "".join(f"[methods.{m}]\n" for m in methods))
+    return plugin, runner.invoke(cli, ["run", str(exp), "-j", str(workers), "-q", "--plugin", str(plugin)])
+
+
+def test_table_and_runs_show_list_failure_reasons_and_warnings(runner, tmp_path, toy_parquet):
+    """Issue 12 item 6: the reasons are in view under every table, not only inside job files."""
+    plugin, out = _run_with_plugin(runner, tmp_path, toy_parquet, NOISY_PLUGIN, ["naive-mean", "warner", "breaker"])
     assert out.exit_code == 1, out.output  # every job of breaker failed
     reason = "ValueError: boom " + "x" * 250
     failed = f"failed (2 jobs): breaker: {reason[:197]}..."  # short under a table, whole in `runs show`
@@ -241,12 +247,7 @@ class Killer(Method):
 def test_a_worker_that_dies_is_one_line_naming_memory_and_resume(runner, tmp_path, toy_parquet):
     """A killed worker process (BrokenProcessPool) is one error line with exit 2 that says what to do from the
     command line; the Python script's main guard, which only enginebench.api.run's callers need, is not in it."""
-    plugin = tmp_path / "killer.py"
-    plugin.write_text(KILLER_PLUGIN)
-    exp = tmp_path / "exp.toml"
-    exp.write_text(f'dataset = "{toy_parquet}"\ntargets = ["y"]\nrepetitions = 2\ntrain_size = 60\n'
-                   '[selection]\nkind = "none"\n[methods.killer]\n')
-    out = runner.invoke(cli, ["run", str(exp), "-j", "2", "-q", "--plugin", str(plugin)])
+    _, out = _run_with_plugin(runner, tmp_path, toy_parquet, KILLER_PLUGIN, ["killer"], workers=2)
     assert out.exit_code == 2, out.output
     line = out.output.strip()
     assert line.startswith("error: a worker process died (") and "\n" not in line
