@@ -9,9 +9,9 @@ under every view of it (``results/notes.py``), so a reader sees why before blami
 
 The outputs are checked the same way: Silverbox's test part opens with an input whose amplitude
 grows past the estimation data's, and it is the output's amplitude that a free run must
-extrapolate to. A column counts as outside on a record when at least ``MIN_FRACTION`` of the record's rows lie
-more than ``MARGIN`` of the training span past the training minimum or maximum: both relative
-to the data, so a few spikes or a value grazing the edge say nothing.
+extrapolate to. A column counts as outside on a record when at least ``MIN_FRACTION`` of the
+record's rows lie more than ``MARGIN`` of the training span past the training minimum or
+maximum: both relative to the data, so a few spikes or a value grazing the edge say nothing.
 """
 
 from __future__ import annotations
@@ -38,19 +38,18 @@ def _outside(X: np.ndarray, low: np.ndarray, high: np.ndarray, names: tuple[str,
              ) -> list[dict[str, Any]]:
     """The entries of one record's columns ``X`` outside [low, high] (``MARGIN``, ``MIN_FRACTION``)."""
     span = high - low
+    beyond = np.maximum(low - X, X - high)  # > 0 outside the range, in the column's unit
     with np.errstate(invalid="ignore"):
-        out = np.maximum(low - MARGIN * span - X, X - high - MARGIN * span) > 0
-    fraction = out.mean(axis=0)
+        fraction = (beyond > MARGIN * span).mean(axis=0)
     entries = []
     for j in np.flatnonzero(fraction >= MIN_FRACTION):
-        beyond = np.maximum(low[j] - X[:, j], X[:, j] - high[j])
-        reach = float(np.nanmax(beyond) / span[j]) if span[j] > 0 else None  # a constant in training
+        reach = float(np.nanmax(beyond[:, j]) / span[j]) if span[j] > 0 else None  # a constant in training
         entries.append({**where, "column": names[j], "fraction": float(fraction[j]), "reach": reach,
                         "low": float(low[j]), "high": float(high[j])})
     return entries
 
 
-def input_coverage(raws: Mapping[str, Mapping[str, RawSegments]]) -> dict[str, Any]:
+def range_coverage(raws: Mapping[str, Mapping[str, RawSegments]]) -> dict[str, Any]:
     """``{"records": {part: count}, "outside": [...]}`` over every split's evaluated parts (all but "train").
 
     ``outside`` holds one entry per (split, part, record, column) outside the training range, for the

@@ -103,7 +103,8 @@ class Context:
     finish: Callable[[Any], None] | None = None
     """Called with the run once every job is stored (a learning curve writes its summary table)."""
     coverage: dict[str, Any] = field(default_factory=dict)
-    """Where the evaluated records' inputs leave the training range (``experiments/coverage.py``), for run.json."""
+    """Where the evaluated records' inputs or outputs leave the training range (``experiments/coverage.py``),
+    for run.json."""
 
 
 def joint_methods(spec: ExperimentSpec, methods: dict[str, Method]) -> set[str]:

@@ -16,7 +16,7 @@ from enginebench.datasets.pools import RawSegments, SamplePool
 from enginebench.datasets.splits import make_splits
 from enginebench.errors import SpecError, StoreError
 from enginebench.experiments import environment
-from enginebench.experiments.coverage import input_coverage
+from enginebench.experiments.coverage import range_coverage
 from enginebench.experiments.engine import (
     ProgressFn, RunResult, check_protocol, check_work, check_workers, context_units, execute, load_dataset,
     physical_model_for, plan,
@@ -79,7 +79,7 @@ def prepare(spec: ExperimentSpec) -> Context:
             method.check_columns(list(raw.inputs), list(raw.internals), list(spec.targets))
             method.check_data(shape)
     return Context(spec=spec, dataset=name, problems=problems, methods=methods, dataset_hash=dataset_hash,
-                   coverage=input_coverage(raws))
+                   coverage=range_coverage(raws))
 
 
 def context_of_run(run: Run) -> Context:
@@ -133,7 +133,7 @@ def run_experiment(
         spec = ctx.spec  # targets = "all" resolved
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
                            len(plan(ctx)), tags=tags)
-        run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx), input_coverage=ctx.coverage)
+        run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx), range_coverage=ctx.coverage)
         return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
                        scheduler=scheduler, executor_options=executor_options)
     state = resume.prepare_resume()  # refuses a damaged run, other plugin files, a second writer

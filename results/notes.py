@@ -5,7 +5,7 @@ were finished by other code than created it.
 ``run_note_lines(run)`` is the one list every view of a run shows (the end of ``run``,
 ``runs show``, ``table``, the static and the interactive report); ``note_lines``,
 ``edge_note_lines``, ``resume_note_lines`` and ``coverage_note_lines`` (evaluated records whose
-inputs leave the training range) are its parts.
+inputs or outputs leave the training range) are its parts.
 """
 
 from __future__ import annotations
@@ -104,11 +104,11 @@ def resume_note_lines(info: dict[str, Any], environment: dict[str, Any]) -> list
 
 def coverage_note_lines(info: dict[str, Any]) -> list[str]:
     """One line per (input or output, part) whose evaluated records leave the training range (run.json's
-    ``input_coverage``, ``experiments/coverage.py``), naming the record most outside, e.g. ``inputs beyond the
+    ``range_coverage``, ``experiments/coverage.py``), naming the record most outside, e.g. ``inputs beyond the
     training range: Force in 1 of 2 test records (most: Level4, 31 % of its rows outside the training's
     [-5.2, 5.1], reaching 0.42 of that span past it): a model fitted on the training records extrapolates
     there``. Runs made before the record was kept say nothing."""
-    coverage = info.get("input_coverage")
+    coverage = info.get("range_coverage")
     if not isinstance(coverage, dict) or not isinstance(coverage.get("outside"), list):
         return []
     totals = coverage.get("records") or {}

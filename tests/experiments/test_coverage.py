@@ -10,7 +10,7 @@ from enginebench.datasets.dataset import SEGMENT, TIME, Dataset
 from enginebench.datasets.io import write_dataset
 from enginebench.datasets.pools import RawSegments, SegmentArrays
 from enginebench.datasets.schema import Column, Schema
-from enginebench.experiments.coverage import input_coverage
+from enginebench.experiments.coverage import range_coverage
 from enginebench.results.notes import coverage_note_lines
 
 
@@ -30,7 +30,7 @@ def test_a_record_is_named_where_enough_rows_lie_past_the_margin():
     spike[:5, 0] = 3.0  # 0.5 % of the rows: under MIN_FRACTION
     grazing = inside.copy()
     grazing[:, 1] = 2.08  # every row, 0.04 spans of b past its maximum: inside the 5 % margin
-    coverage = input_coverage({"s": {"train": train, "test": _raw(("in", inside), ("past", past), ("spike", spike),
+    coverage = range_coverage({"s": {"train": train, "test": _raw(("in", inside), ("past", past), ("spike", spike),
                                                                    ("grazing", grazing))}})
     assert coverage["records"] == {"test": 4}
     [entry] = coverage["outside"]
@@ -40,7 +40,7 @@ def test_a_record_is_named_where_enough_rows_lie_past_the_margin():
 
 
 def test_the_note_names_the_record_most_outside():
-    info = {"input_coverage": {"records": {"test": 2}, "outside": [
+    info = {"range_coverage": {"records": {"test": 2}, "outside": [
         {"split": "s", "part": "test", "segment": "L4", "column": "Force", "role": "input", "fraction": 0.31, "reach": 0.42,
          "low": -5.2, "high": 5.1}]}}
     assert coverage_note_lines(info) == [
