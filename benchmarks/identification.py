@@ -36,7 +36,7 @@ import numpy as np
 from enginebench import registry
 from enginebench.datasets import catalog
 from enginebench.errors import EngineBenchError
-from enginebench.experiments.jobs import Job, method_rng, refit_samples, training_samples
+from enginebench.experiments.jobs import Job, final_fit_rng, method_rng, refit_samples, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.selection import select
 from enginebench.experiments.spec import load_spec
@@ -91,7 +91,8 @@ def run_experiment(name: str, methods: list[str] | None, peers: bool) -> list[di
                 t0 = time.perf_counter()
                 params, record = select(method, train, spec.selection, rng, init_samples=spec.init_samples)
                 t1 = time.perf_counter()
-                fitted = method.fit(refit_samples(spec, problem, train, 0, split), params, rng)
+                fitted = method.fit(refit_samples(spec, problem, train, 0, split), params,
+                                    final_fit_rng(spec, Job(target, window, split, mname, 0)))
                 t2, c2 = time.perf_counter(), time.process_time()
                 pred = method.predict(fitted, view)
                 t3, c3 = time.perf_counter(), time.process_time()

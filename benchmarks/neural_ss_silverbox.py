@@ -33,7 +33,7 @@ import torch
 from enginebench import registry
 from enginebench.datasets import catalog
 from enginebench.errors import EngineBenchError
-from enginebench.experiments.jobs import Job, method_rng, training_samples
+from enginebench.experiments.jobs import Job, final_fit_rng, training_samples
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import load_spec
 from enginebench.results import metrics
@@ -76,7 +76,7 @@ def run(experiment: str, methods: list[str], device: str, extra: dict[str, objec
               f"init window, output SD {y.std() * 1e3:.2f} mV", flush=True)
         for name in methods:
             method = registry.get(name)(device=device, **extra)
-            rng = method_rng(spec, Job(target, window, split, name, 0))
+            rng = final_fit_rng(spec, Job(target, window, split, name, 0))  # as the run's final fit
             params = {k: v[0] for k, v in method.search_space(train).items()}
             t0 = time.perf_counter()
             fitted = method.fit(train, params, rng)

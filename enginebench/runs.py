@@ -137,8 +137,9 @@ class Run(_store.Run):
         run left its envelope; simulation runs).
 
         Predictions are not stored in a run: they are computed again here (the data loaded, the model
-        fitted), as the reports and ``enginebench plots`` do, so a deterministic method gives the job's
-        own predictions and a stochastic one a fresh draw. ``target`` may be left out when the run has
+        fitted), as the reports and ``enginebench plots`` do, with the job's own final-fit generator, so
+        they are the job's own predictions, a random method's draws included (not where the job tested the
+        selection's own model, ``refit = false``: that one is drawn afresh). ``target`` may be left out when the run has
         one; ``window`` and ``split`` narrow the rows (default: all of the run's). Static and window
         runs thin a part longer than ``max_rows`` (default 20,000) to evenly spaced rows.
         """

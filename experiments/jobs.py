@@ -184,21 +184,29 @@ def refit_samples(spec: ExperimentSpec, problem: Problem, train: Samples, repeti
 
 
 def method_rng(spec: ExperimentSpec, job: Job) -> np.random.Generator:
-    """The generator of a job's own draws: depends on (seed, repetition, method)."""
+    """The generator of a job's selection draws (folds, search points, the candidates' own draws): depends on
+    (seed, repetition, method)."""
     return np.random.default_rng([spec.seed, job.repetition, stable_int(job.method)])
+
+
+def final_fit_rng(spec: ExperimentSpec, job: Job) -> np.random.Generator:
+    """The generator of a job's final fit: its own stream, not what selection left of ``method_rng``'s, so a
+    stored job's model can be fitted again without replaying selection (``refit_stored_job``)."""
+    return np.random.default_rng([spec.seed, job.repetition, stable_int(job.method), stable_int("final fit")])
 
 
 def refit_stored_job(ctx: Context, job: Job, meta: dict[str, Any], train: Samples) -> Any:
     """Fit a stored job's method again on ``train`` with the hyperparameters the job selected.
 
-    For figures and reports: a deterministic method reproduces the job's model exactly
-    (selection is not replayed). A random one (MoE) does not: with ``refit = false`` the job
-    tested the selection's own model, drawn after the grid's earlier points, and this fit
-    draws afresh. MethodError when the job failed in the run.
+    For figures and reports: the job's final fit drew from ``final_fit_rng``, as this fit does, so a
+    method reproduces the job's model exactly, random draws (Nystroem centres, initial weights) included, on
+    the same machine and library versions. Except where the job tested the selection's own model
+    (``meta["tested_selected_model"]``, with ``refit = false``): that model was drawn during selection and
+    this fit draws afresh. MethodError when the job failed in the run.
     """
     if meta.get("status") != "ok":
         raise MethodError(f"repetition {job.repetition} failed in the run ({meta.get('reason', '?')})")
-    return ctx.methods[job.method].fit(train, meta.get("params", {}), method_rng(ctx.spec, job))
+    return ctx.methods[job.method].fit(train, meta.get("params", {}), final_fit_rng(ctx.spec, job))
 
 
 PREDICT_BATCH_ROWS = 20_000
@@ -332,7 +340,7 @@ def _run_job(ctx: Context, job: Job, spec: ExperimentSpec, problem: Problem, met
         fitted = search.pop("fitted", None)
         meta["tested_selected_model"] = fitted is not None
         if fitted is None:
-            fitted = method.fit(fit_on, params, rng)
+            fitted = method.fit(fit_on, params, final_fit_rng(spec, job))
         timings["fit_s"] = time.perf_counter() - t0
         scale = mean_abs(fit_on.y)  # exact-scaled: no overflow near 1e308
         described = method.describe(fitted)

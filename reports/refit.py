@@ -57,8 +57,8 @@ def refit_predictions(
 
     Each method is fitted on the training subsample the run drew for that repetition and
     split (the same seeds as the run's job) with the hyperparameters the job selected, so
-    a deterministic method reproduces the job's predictions exactly; a stochastic one
-    draws afresh (selection is not replayed). Parts longer than ``max_rows`` are thinned
+    a method reproduces the job's predictions exactly, its random draws included (the final fit has
+    its own generator; selection is not replayed). Parts longer than ``max_rows`` are thinned
     to evenly spaced rows. Returns the predictions and notes on what was skipped.
     """
     from enginebench.experiments.jobs import JOINT, job_for, refit_stored_job, training_samples

@@ -9,9 +9,9 @@ the run-time inputs, and the mixing weights of the first method that declares th
 gate, evaluated along the simulated trajectory) as stacked bands.
 One measured-vs-predicted scatter per method is written too.
 
-The re-fit draws its random numbers from a generator seeded like the run's job but
-without replaying the model selection, so a stochastic method (MoE) may differ slightly
-from the stored job; the figure says "re-fitted".
+The re-fit draws its random numbers from the job's own final-fit generator
+(``jobs.final_fit_rng``), so it is the job's model, a random method's (narx's centres, MoE's
+weights) included; the figure says "re-fitted".
 """
 
 from __future__ import annotations

@@ -183,3 +183,39 @@ def test_a_script_calling_run_with_workers_needs_the_main_guard_and_says_so(tmp_
     assert "WorkerDied: a worker process died (" in done.stderr
     assert ("(fewer workers, `-j`, need less). From a Python script, call enginebench.api.run under "
             "`if __name__ == \"__main__\":`") in done.stderr
+
+
+RANDOM_PLUGIN = '''
+import numpy as np
+from enginebench.method import Method
+
+class Jitter(Method):
+    """The training mean plus a random offset drawn at fit: each fit's model is a fresh draw."""
+    name = "jitter"
+    family = "baseline"
+    def search_space(self, train):
+        return {"scale": np.array([0.5, 1.0, 2.0])}
+    def fit(self, train, params, rng):
+        return np.mean(train.y, axis=0) + params["scale"] * rng.standard_normal(train.y.shape[1])
+    def predict(self, fitted, data):
+        return [np.tile(fitted, (len(s), 1)) for s in data.segments]
+'''
+
+
+def test_predictions_of_a_random_method_are_the_jobs_own_model(tmp_path):
+    """The final fit draws from a generator of its own (experiments/jobs.py final_fit_rng), not from what the
+    selection's draws left of the job's, so Run.predictions, the reports and the figures re-fit the very model
+    the job scored, a random one included."""
+    plugin = tmp_path / "jitter.py"
+    plugin.write_text(RANDOM_PLUGIN)
+    data = write_dataset(make_toy(), tmp_path / "toy.parquet")
+    spec = {**toy_experiment(data), "methods": {"jitter": {}}}
+    ran = run(spec, store=tmp_path / "store", workers=1, plugins=[plugin])
+    raw = ran.metrics()
+    maes = []
+    for rep in range(3):
+        pred = ran.predictions("jitter", repetition=rep)
+        mae = raw[(raw.repetition == rep) & (raw.split == "test") & (raw.metric == "mae")]["value"].item()
+        assert np.mean(np.abs(pred["truth"] - pred["prediction"])) == pytest.approx(mae, rel=1e-12)
+        maes.append(mae)
+    assert len(set(maes)) == 3  # the draws differ per repetition: the test would see a fresh draw
