@@ -22,7 +22,9 @@ is the Method: options, grid, selection, fitting and prediction flow. Free run
 (``predict``): the first lagged outputs are the init window's measured ones, after the
 window only simulated outputs are fed back; a run leaving the envelope of the training
 outputs, or turning non-finite, is flagged and held at its last in-envelope value
-(``methods/freerun.py``), as for ``sindy``.
+(``methods/freerun.py``), as for ``sindy``. The kernel reads its regressors clipped to the
+training data's range (``kernel_box``, ``narx_model.KernelBox``): past the data the kernel
+part holds its edge value and only the linear part extrapolates.
 
 Selection: the toolkit scores ``predict_grid``'s free runs on validation blocks, so
 orders and kernel hyperparameters are chosen on simulation error, not one-step error.
@@ -70,9 +72,9 @@ from enginebench.method import Method, Params, SearchSpace, SegmentPredictions, 
 from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction_inputs, init_window, orders,
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
-from enginebench.methods.narx_model import (KernelModel, LinearBasis, MIMOModel, NARXFit, Standardised, free_run,
-                                            mimo_free_run, mimo_regressors, nystroem_ridge, regression_count, regressors,
-                                            standardise)
+from enginebench.methods.narx_model import (KernelBox, KernelModel, LinearBasis, MIMOModel, NARXFit, Standardised,
+                                            free_run, mimo_free_run, mimo_regressors, nystroem_ridge, regression_count,
+                                            regressors, standardise)
 from enginebench.samples import Samples
 
 NAME = "narx"
@@ -101,6 +103,8 @@ class NARX(GivenOrders, Method):
         whole("kernel_lags", 8, "the kernel reads at most this many lags of each signal (the linear part all)",
               low=1, unit="samples"),
         flag("linear", True, "an unpenalised linear ARX part beside the kernel"),
+        flag("kernel_box", True, "the kernel reads its regressors clipped to the training data's range (outside "
+             "it the kernel part holds its edge value and the linear part extrapolates); false: unclipped"),
         flag("shared_kernel", False, "with joint_targets: ONE kernel on every output's lags and the inputs for all "
              "outputs (a MIMO NARX, each output reading every output's past; one factorisation, k right-hand "
              "sides) instead of one kernel per output"),
@@ -289,15 +293,21 @@ class NARX(GivenOrders, Method):
             mimo, solver, n_rows, info = self._mimo_models(std, k, [point], rng)
             return NARXFit(models=(), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean, u_std=std.u_std,
                            input_names=tuple(train.input_names), target_names=tuple(train.target_names),
-                           envelope=std.envelope, solver=solver, n_rows=n_rows, info=info, mimo=mimo[0])
+                           envelope=std.envelope, solver=solver, n_rows=n_rows, info=info, mimo=mimo[0],
+                           box=self._box(std))
         models, solver, n_rows, info = self._models(std, k, [point], rng)
         return NARXFit(models=tuple(models[0]), y_mean=std.y_mean, y_std=std.y_std, u_mean=std.u_mean,
                        u_std=std.u_std, input_names=tuple(train.input_names), target_names=tuple(train.target_names),
-                       envelope=std.envelope, solver=solver, n_rows=n_rows, info=info)
+                       envelope=std.envelope, solver=solver, n_rows=n_rows, info=info, box=self._box(std))
+
+    def _box(self, std: Standardised) -> KernelBox | None:
+        """The training data's range the kernel's regressors are clipped to (``kernel_box``), or None."""
+        return std.box if bool(self.options["kernel_box"]) else None
 
     # -- prediction ------------------------------------------------------------------------------
     def _simulate(self, fits: Sequence[NARXFit], data: Samples) -> list[tuple[list[np.ndarray], np.ndarray]]:
-        """Free runs of every fit (all of them share the standardisation) on ``data``: per fit (arrays, diverged)."""
+        """Free runs of every fit (all of them share the standardisation and kernel box) on ``data``: per fit
+        (arrays, diverged)."""
         first = fits[0]
         check_prediction_inputs(NAME, data, len(first.input_names))
         k = len(first.target_names)
@@ -313,9 +323,9 @@ class NARX(GivenOrders, Method):
             W = [(windows[i] - first.y_mean) / first.y_std for i in members]
             lengths = [len(data.segments[i].t) for i in members]
             if first.mimo is not None:  # (fits, segments, T, k) -> (fits, k, segments, T)
-                runs = mimo_free_run([f.mimo for f in fits], U, W, lengths).transpose(0, 3, 1, 2)
-            else:
-                runs = free_run(models, U, W, lengths, self._limits(first, models))  # (fits * k, segments, T)
+                runs = mimo_free_run([f.mimo for f in fits], U, W, lengths, first.box).transpose(0, 3, 1, 2)
+            else:  # (fits * k, segments, T)
+                runs = free_run(models, U, W, lengths, self._limits(first, models), first.box)
                 runs = runs.reshape(len(fits), k, *runs.shape[1:])
             for f_idx, f in enumerate(fits):
                 for r, i in enumerate(members):
@@ -367,10 +377,11 @@ class NARX(GivenOrders, Method):
         out[[i for i in range(len(points)) if i not in usable]] = np.nan  # too few rows for these lags: +inf score
         if not usable:
             return out
+        box = self._box(std)
         fits = [NARXFit(models=() if shared else tuple(models[i]), y_mean=std.y_mean, y_std=std.y_std,  # type: ignore
                         u_mean=std.u_mean, u_std=std.u_std, input_names=tuple(train.input_names),
                         target_names=tuple(train.target_names), envelope=std.envelope, solver=solver, n_rows=n_rows,
-                        mimo=models[i] if shared else None) for i in usable]  # type: ignore[arg-type]
+                        mimo=models[i] if shared else None, box=box) for i in usable]  # type: ignore[arg-type]
         for i, (arrays, _) in zip(usable, self._simulate(fits, data)):
             out[i] = np.concatenate(arrays)
         return out
@@ -401,6 +412,7 @@ class NARX(GivenOrders, Method):
             "standardisation": {"y_mean": fitted.y_mean.tolist(), "y_std": fitted.y_std.tolist(),
                                 "u_mean": fitted.u_mean.tolist(), "u_std": fitted.u_std.tolist()},
             "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
+            "kernel_box": _box_facts(fitted),
             **fitted.info,
         }
 
@@ -426,6 +438,7 @@ class NARX(GivenOrders, Method):
             "standardisation": {"y_mean": fitted.y_mean.tolist(), "y_std": fitted.y_std.tolist(),
                                 "u_mean": fitted.u_mean.tolist(), "u_std": fitted.u_std.tolist()},
             "envelope": {"lower": fitted.envelope.lower.tolist(), "upper": fitted.envelope.upper.tolist()},
+            "kernel_box": _box_facts(fitted),
             **fitted.info,
         }
 
@@ -440,3 +453,13 @@ class NARX(GivenOrders, Method):
         from enginebench.methods.export.harness import c_step_times
 
         return c_step_times(self.c_model(fitted), data)
+
+
+def _box_facts(fitted: NARXFit) -> dict[str, list[list[float]]] | None:
+    """The range the kernel's regressors are clipped to, in the signals' units: [low, high] per input and output."""
+    box = fitted.box
+    if box is None:
+        return None
+    inputs = np.stack([box.u_lo, box.u_hi], axis=1) * fitted.u_std[:, None] + fitted.u_mean[:, None]
+    outputs = np.stack([box.y_lo, box.y_hi], axis=1) * fitted.y_std[:, None] + fitted.y_mean[:, None]
+    return {"inputs": inputs.tolist(), "outputs": outputs.tolist()}

@@ -27,7 +27,18 @@ product with the coefficients. The input part of the exponent does not depend on
 simulated outputs, so it is computed for blocks of time steps at once (a matrix
 product); the |z|^2 terms are folded into both products (the history stores y and y^2),
 so the exponent is -(gamma/d) |z - c|^2 <= 0 exactly as written and f stays bounded; the
-linear part is added from the same history. An unstable linear part can still blow a run
+linear part is added from the same history.
+
+The kernel reads its regressors clipped to the training data's box (``KernelBox``: each
+standardised input's and output's training minimum and maximum): inside the training
+data nothing changes, outside it the kernel sum holds the value it has at the box's edge
+and only the linear part extrapolates. Without the clip a Gaussian kernel sum fitted with
+little regularisation is a fine cancellation of large coefficients, which breaks down
+just past the data: on the F-16 records a model selected on excitation levels 1 and 3
+fitted level 2 at 55.6 % and the louder level 4 at -548 % (its outputs a third of the
+training span past the training range); clipped, 44 % (docs/benchmarks.md). The history
+holds the clipped outputs (and their squares) for the kernel, a second array the outputs
+themselves for the linear part. An unstable linear part can still blow a run
 up: a run leaving the envelope [min - e span, max + e span] of the training outputs, or
 turning non-finite, is flagged and held at its last in-envelope value
 (``methods/freerun.py``), as for ``sindy``.
@@ -54,6 +65,33 @@ LN2 = math.log(2.0)
 
 
 # --------------------------------------------------------------------------- fitted model
+@dataclass(frozen=True)
+class KernelBox:
+    """The training data's range per standardised signal: the kernel reads its regressors clipped to it."""
+
+    u_lo: np.ndarray
+    u_hi: np.ndarray
+    """(inputs,) each input's training minimum and maximum."""
+    y_lo: np.ndarray
+    y_hi: np.ndarray
+    """(targets,) each output's."""
+
+    @classmethod
+    def of(cls, traj: Sequence[Trajectory]) -> "KernelBox":
+        U = np.vstack([t.U for t in traj])
+        Y = np.vstack([t.Y for t in traj])
+        return cls(U.min(axis=0), U.max(axis=0), Y.min(axis=0), Y.max(axis=0))
+
+    @classmethod
+    def unbounded(cls, inputs: int, targets: int) -> "KernelBox":
+        """No clipping (a model fitted with ``kernel_box = false``, or stored before the box existed)."""
+        return cls(np.full(inputs, -np.inf), np.full(inputs, np.inf), np.full(targets, -np.inf),
+                   np.full(targets, np.inf))
+
+    def clip_inputs(self, U: np.ndarray) -> np.ndarray:
+        return np.clip(U, self.u_lo, self.u_hi)
+
+
 @dataclass(frozen=True)
 class KernelParts:
     """What a kernel NARX model holds, standardised: lags, a linear ARX part and the kernel sum's centres and
@@ -115,6 +153,12 @@ class NARXFit:
     info: dict[str, Any] = field(default_factory=dict)
     mimo: "MIMOModel | None" = None
     """With ``shared_kernel``: the one model of every output (``models`` is then empty)."""
+    box: KernelBox | None = None
+    """The range the kernel's regressors are clipped to; None: not clipped (``kernel_box = false``)."""
+
+    def kernel_box(self) -> KernelBox:
+        """``box``, or one that clips nothing."""
+        return self.box if self.box is not None else KernelBox.unbounded(len(self.u_mean), len(self.y_mean))
 
 
 # --------------------------------------------------------------------------- regression data
@@ -128,6 +172,10 @@ class Standardised:
     u_mean: np.ndarray
     u_std: np.ndarray
     envelope: Envelope
+
+    @property
+    def box(self) -> KernelBox:
+        return KernelBox.of(self.traj)
 
 
 def standardise(traj: list[Trajectory], envelope: float) -> Standardised:
@@ -198,7 +246,7 @@ def _input_lags(U: np.ndarray, lags: int, length: int) -> np.ndarray:
 
 
 def free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
-             lengths: Sequence[int], limits: np.ndarray | None = None) -> np.ndarray:
+             lengths: Sequence[int], limits: np.ndarray | None = None, box: KernelBox | None = None) -> np.ndarray:
     """Simulate every model on every segment at once, in standardised units: (models, segments, max length).
 
     See ``_free_run``; BLAS runs single-threaded here: each step's products are far too
@@ -206,20 +254,24 @@ def free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], window
     (models, 2): each model's envelope (lower, upper) in standardised units, a little wider
     than the one ``Envelope.clip_run`` applies; a model that leaves it on every segment is
     no longer simulated (its rows after that are undefined: the clip holds its run from the
-    first row out, which it has already reached).
+    first row out, which it has already reached). ``box``: the range the kernel's regressors are clipped to
+    (standardised; every model's target indexes its outputs); None clips nothing.
     """
+    if box is None:
+        box = KernelBox.unbounded(inputs[0].shape[1], max(m.target for m in models) + 1)
     with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):  # blow-ups are flagged later
-        return _free_run(models, inputs, windows, lengths, limits)
+        return _free_run(models, inputs, windows, lengths, limits, box)
 
 
 def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
-              lengths: Sequence[int], limits: np.ndarray | None = None) -> np.ndarray:
+              lengths: Sequence[int], limits: np.ndarray | None, box: KernelBox) -> np.ndarray:
     """The time loop of ``free_run``.
 
     ``inputs[s]`` (n_s, c) standardised inputs, ``windows[s]`` (N, k) standardised measured
     outputs of the init window (the same N for every segment), ``lengths[s]`` = n_s.
     Rows < N are the window (model g reads column ``models[g].target``); from N on each
     model's own outputs are fed back. Values past a segment's length are undefined.
+    ``H`` holds the kernel's history (outputs clipped to the box, and their squares), ``Y`` the outputs.
     """
     G, S = len(models), len(inputs)
     N = len(windows[0])
@@ -271,15 +323,19 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
 
     Zu = np.zeros((S, T, 2 * du + 1))
     for r, s_idx in enumerate(order):
-        lag = _input_lags(inputs[s_idx], lu, T)
+        lag = _input_lags(box.clip_inputs(inputs[s_idx]), lu, T)
         Zu[r, :, :du] = lag
         Zu[r, :, du:2 * du] = lag ** 2
         Zu[r, :, 2 * du] = 1.0
-    H = np.zeros((G, S, na_max + T, 2))
+    targets = [m.target for m in models]
+    y_lim = np.stack([box.y_lo[targets], box.y_hi[targets]], axis=1)  # (G, 2), swapped with the models
+    Y = np.zeros((G, S, na_max + T))
     for r, s_idx in enumerate(order):
-        w = windows[s_idx][:, [m.target for m in models]].T  # (G, N)
-        H[:, r, :na_max, 0] = w[:, :1]
-        H[:, r, na_max:na_max + N, 0] = w
+        w = windows[s_idx][:, targets].T  # (G, N)
+        Y[:, r, :na_max] = w[:, :1]
+        Y[:, r, na_max:na_max + N] = w
+    H = np.zeros((G, S, na_max + T, 2))
+    H[..., 0] = np.clip(Y, y_lim[:, 0, None, None], y_lim[:, 1, None, None])
     H[..., 1] = H[..., 0] ** 2
 
     steps = max(1, int(CHUNK_MIB * 2**20 // (8 * G * S * m_max)))
@@ -287,7 +343,6 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     y_buf = np.empty((G, S, 1))
     e1 = np.empty(m_max)
     Cu2 = np.ascontiguousarray(Cu.transpose(1, 0, 2).reshape(2 * du + 1, G * m_max))
-    H0 = H[..., 0]  # the outputs alone, (G, S, na_max + T) strided view
     kh = na_max - ka_max  # the kernel's history starts this many rows after the linear part's
     # retirement: models are kept in positions; those still simulated are the prefix [0, Ga)
     perm = np.arange(G)  # position -> model
@@ -301,8 +356,9 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
         # columns (model, centre); a step then adds its row to the history product and takes one exp2
         P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2[:, :Ga * m_max]).reshape(live, t1 - t0, Ga, m_max)
         if Ga == 1 and live == 1:  # the common predict case, in 1-D operations (half the overhead)
-            P1, V1, h1, H1 = P[0, :, 0], V[0, :, 0], H0[0, 0], H[0, 0]
+            P1, V1, h1, H1 = P[0, :, 0], V[0, :, 0], Y[0, 0], H[0, 0]
             Cy1, beta1, ay1 = Cy[0], beta[0, :, 0], Ay[0, :, 0]
+            lo, hi = float(y_lim[0, 0]), float(y_lim[0, 1])
             for t in range(t0, t1):
                 np.dot(H1[t + kh:t + na_max].reshape(-1), Cy1, out=e1)
                 e1 += P1[t - t0]
@@ -310,8 +366,10 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
                 v = float(np.dot(e1, beta1))
                 if linear:
                     v += float(np.dot(h1[t:t + na_max], ay1)) + V1[t]
-                H1[na_max + t, 0] = v
-                H1[na_max + t, 1] = v * v
+                h1[na_max + t] = v
+                vc = min(max(v, lo), hi)  # NaN stays NaN, as np.clip
+                H1[na_max + t, 0] = vc
+                H1[na_max + t, 1] = vc * vc
         else:
             for t in range(t0, t1):
                 while live and sorted_len[live - 1] <= t:
@@ -324,32 +382,34 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
                 y = y_buf[:Ga, :live]
                 np.matmul(E, beta[:Ga], out=y)
                 if linear:
-                    y += np.matmul(H0[:Ga, :live, t:t + na_max], Ay[:Ga])
+                    y += np.matmul(Y[:Ga, :live, t:t + na_max], Ay[:Ga])
                     y += V[:live, t, :Ga].T[..., None]
-                H[:Ga, :live, na_max + t, 0] = y[..., 0]
-                np.square(y[..., 0], out=H[:Ga, :live, na_max + t, 1])
+                Y[:Ga, :live, na_max + t] = y[..., 0]
+                np.clip(y[..., 0], y_lim[:Ga, 0, None], y_lim[:Ga, 1, None], out=H[:Ga, :live, na_max + t, 0])
+                np.square(H[:Ga, :live, na_max + t, 0], out=H[:Ga, :live, na_max + t, 1])
         if lim is not None and t1 < T:
-            Ga = _retire(H, Cy, Cu2, beta, Ay, V, perm, dead, lim, Ga, m_max, na_max + t0, na_max + t1,
+            Ga = _retire(Y, H, y_lim, Cy, Cu2, beta, Ay, V, perm, dead, lim, Ga, m_max, na_max + t0, na_max + t1,
                          int(np.searchsorted(-sorted_len, -(t1 + 1), side="right")))
             if Ga == 0:
                 break
     out = np.empty((G, S, T))
-    out[perm[:, None], order[None, :]] = H[:, :, na_max:, 0]
+    out[perm[:, None], order[None, :]] = Y[:, :, na_max:]
     return out
 
 
-def _retire(H: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray, Ay: np.ndarray, V: np.ndarray,
-            perm: np.ndarray, dead: np.ndarray, lim: np.ndarray, Ga: int, m: int, r0: int, r1: int, live: int) -> int:
+def _retire(Y: np.ndarray, H: np.ndarray, y_lim: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray,
+            Ay: np.ndarray, V: np.ndarray, perm: np.ndarray, dead: np.ndarray, lim: np.ndarray, Ga: int, m: int,
+            r0: int, r1: int, live: int) -> int:
     """Move the models that left their limits on every segment still running past the simulated prefix.
 
-    Rows ``r0:r1`` of ``H`` were just simulated. A model whose output left ``lim`` (lower,
+    Rows ``r0:r1`` of ``Y`` were just simulated. A model whose output left ``lim`` (lower,
     upper; NaN counts as out) on a segment is dead there; once it is dead on each of the
     ``live`` segments still running it is swapped behind position ``Ga`` with every
     per-model array, so later steps skip it. What it would simulate next is never read: its
     run is held from its first row out of the envelope (``Envelope.clip_run``), which lies
     in the rows already simulated. Returns the new ``Ga``.
     """
-    vals = H[:Ga, :live, r0:r1, 0]
+    vals = Y[:Ga, :live, r0:r1]
     with np.errstate(invalid="ignore"):
         inside = (vals >= lim[:Ga, 0, None, None]) & (vals <= lim[:Ga, 1, None, None])
     dead[:Ga, :live] |= ~inside.all(axis=2)
@@ -358,7 +418,7 @@ def _retire(H: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray, Ay
     for p in np.flatnonzero(dead[:Ga, :live].all(axis=1))[::-1]:  # from the back: swaps keep earlier positions
         q = Ga - 1
         if p != q:
-            for arr in (H, Cy, beta, Ay, dead, lim, perm):
+            for arr in (Y, H, y_lim, Cy, beta, Ay, dead, lim, perm):
                 arr[[p, q]] = arr[[q, p]]
             V[:, :, [p, q]] = V[:, :, [q, p]]
             Cu2[:, p * m:(p + 1) * m], Cu2[:, q * m:(q + 1) * m] = Cu2[:, q * m:(q + 1) * m].copy(), \
@@ -407,18 +467,21 @@ def mimo_regressors(traj: Sequence[Trajectory], na: int, nb: int, nk: int,
 
 
 def mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
-                  lengths: Sequence[int]) -> np.ndarray:
+                  lengths: Sequence[int], box: KernelBox | None = None) -> np.ndarray:
     """Simulate every MIMO model on every segment at once, standardised: (models, segments, max length, k).
 
     As ``free_run`` (window rows measured, then every output fed back; BLAS single-threaded),
-    with one exponent per centre per step serving all k outputs. Models are not retired.
+    with one exponent per centre per step serving all k outputs, the kernel's regressors clipped to
+    ``box`` (None: not clipped). Models are not retired.
     """
+    if box is None:
+        box = KernelBox.unbounded(inputs[0].shape[1], models[0].k)
     with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):  # blow-ups are flagged later
-        return _mimo_free_run(models, inputs, windows, lengths)
+        return _mimo_free_run(models, inputs, windows, lengths, box)
 
 
 def _mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], windows: Sequence[np.ndarray],
-                   lengths: Sequence[int]) -> np.ndarray:
+                   lengths: Sequence[int], box: KernelBox) -> np.ndarray:
     G, S, k = len(models), len(inputs), models[0].k
     N = len(windows[0])
     lengths = np.asarray(lengths, dtype=np.int64)
@@ -464,16 +527,18 @@ def _mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], wi
 
     V = np.empty((S, T, G, k))
     Zu = np.zeros((S, T, 2 * du + 1))
-    H = np.zeros((G, S, na_max + T, 2, k))
+    Yh = np.zeros((G, S, na_max + T, k))  # the outputs (linear part); H: the kernel's clipped ones and squares
     for r, s_idx in enumerate(order):
         V[r] = (_input_lags(inputs[s_idx], ll, T) @ Bl).reshape(T, G, k) + c0
-        lag = _input_lags(inputs[s_idx], lu, T)
+        lag = _input_lags(box.clip_inputs(inputs[s_idx]), lu, T)
         Zu[r, :, :du] = lag
         Zu[r, :, du:2 * du] = lag ** 2
         Zu[r, :, 2 * du] = 1.0
         w = windows[s_idx]  # (N, k)
-        H[:, r, :na_max, 0] = w[0]
-        H[:, r, na_max:na_max + N, 0] = w
+        Yh[:, r, :na_max] = w[0]
+        Yh[:, r, na_max:na_max + N] = w
+    H = np.zeros((G, S, na_max + T, 2, k))
+    H[..., 0, :] = np.clip(Yh, box.y_lo, box.y_hi)
     H[..., 1, :] = H[..., 0, :] ** 2
 
     steps = max(1, int(CHUNK_MIB * 2**20 // (8 * G * S * m_max)))
@@ -489,12 +554,14 @@ def _mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], wi
             E += P[:live, t - t0].transpose(1, 0, 2)
             np.exp2(E, out=E)
             y = np.matmul(E, beta)
-            y += np.matmul(H[:, :live, t:t + na_max, 0].reshape(G, live, na_max * k), Ay)
+            y += np.matmul(Yh[:, :live, t:t + na_max].reshape(G, live, na_max * k), Ay)
             y += V[:live, t].transpose(1, 0, 2)
-            H[:, :live, na_max + t, 0] = y
-            H[:, :live, na_max + t, 1] = y * y
+            Yh[:, :live, na_max + t] = y
+            yc = np.clip(y, box.y_lo, box.y_hi)
+            H[:, :live, na_max + t, 0] = yc
+            H[:, :live, na_max + t, 1] = yc * yc
     out = np.empty((G, S, T, k))
-    out[:, order] = H[:, :, na_max:, 0]
+    out[:, order] = Yh[:, :, na_max:]
     return out
 
 

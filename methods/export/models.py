@@ -38,9 +38,22 @@ def arx_c(fitted: Any) -> CModel:
                   lower=fitted.envelope.lower, upper=fitted.envelope.upper)
 
 
+def _boxed(expr: str, lo: float, hi: float) -> str:
+    """``expr`` clipped to [lo, hi] as ``np.clip`` does it (a NaN stays NaN, unlike fmin/fmax); unclipped when the
+    range is unbounded (``narx``'s kernel box)."""
+    if not (np.isfinite(lo) or np.isfinite(hi)):
+        return expr
+    return f"eb_clip({expr}, {c_double(lo)}, {c_double(hi)})"
+
+
+EB_CLIP = "static inline double eb_clip(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }"
+
+
 def narx_c(fitted: Any) -> CModel:
-    """``narx``: per target (standardised) kernel sum + (output lags + (input lags + c0)), as ``free_run``."""
+    """``narx``: per target (standardised) kernel sum + (output lags + (input lags + c0)), as ``free_run``, the kernel
+    reading its regressors clipped to the fitted kernel box."""
     consts: dict[str, np.ndarray] = {}
+    box = fitted.kernel_box()
     parts = []
     na_max = max(md.na for md in fitted.models)
     lu = max(md.nk + md.nb for md in fitted.models)
@@ -51,9 +64,9 @@ def narx_c(fitted: Any) -> CModel:
         consts[f"NX{g}_C"] = np.asarray(md.centres, dtype=np.float64)
         consts[f"NX{g}_BETA"] = np.asarray(md.beta, dtype=np.float64)
         j = int(md.target)
-        z = [f"yh[{j} * LY + {md.ka - q - 1}]" for q in range(md.ka)]
+        z = [_boxed(f"yh[{j} * LY + {md.ka - q - 1}]", box.y_lo[j], box.y_hi[j]) for q in range(md.ka)]
         c = md.b.shape[0]
-        z += [f"uh[{i} * LU + {md.nk + l}]" for i in range(c) for l in range(md.kb)]
+        z += [_boxed(f"uh[{i} * LU + {md.nk + l}]", box.u_lo[i], box.u_hi[i]) for i in range(c) for l in range(md.kb)]
         zdecl = ", ".join(z) if z else "0.0"
         parts.append(f"""    {{ /* target {j} */
         const double z[{max(len(z), 1)}] = {{{zdecl}}};
@@ -72,7 +85,7 @@ def narx_c(fitted: Any) -> CModel:
     return CModel(method="narx", inputs=tuple(fitted.input_names), targets=tuple(fitted.target_names),
                   u_lags=lu, y_lags=na_max, body="\n".join(parts), constants=consts,
                   u_mean=fitted.u_mean, u_std=fitted.u_std, y_mean=fitted.y_mean, y_std=fitted.y_std,
-                  lower=fitted.envelope.lower, upper=fitted.envelope.upper)
+                  lower=fitted.envelope.lower, upper=fitted.envelope.upper, prelude=EB_CLIP + "\n")
 
 
 def narx_mimo_c(fitted: Any) -> CModel:
@@ -84,8 +97,9 @@ def narx_mimo_c(fitted: Any) -> CModel:
     consts = {"NM_A": np.asarray(md.a, dtype=np.float64), "NM_B": np.asarray(md.b, dtype=np.float64),
               "NM_C0": np.asarray(md.c0, dtype=np.float64), "NM_C": np.asarray(md.centres, dtype=np.float64),
               "NM_BETA": np.asarray(md.beta, dtype=np.float64)}
-    z = [f"yh[{p} * LY + {md.ka - q - 1}]" for p in range(k) for q in range(md.ka)]
-    z += [f"uh[{i} * LU + {md.nk + l}]" for i in range(c) for l in range(md.kb)]
+    box = fitted.kernel_box()
+    z = [_boxed(f"yh[{p} * LY + {md.ka - q - 1}]", box.y_lo[p], box.y_hi[p]) for p in range(k) for q in range(md.ka)]
+    z += [_boxed(f"uh[{i} * LU + {md.nk + l}]", box.u_lo[i], box.u_hi[i]) for i in range(c) for l in range(md.kb)]
     body = f"""    const double z[{d}] = {{{", ".join(z)}}};
     double kern[{k}];
     for (int o = 0; o < {k}; o++) kern[o] = 0.0;
@@ -105,7 +119,7 @@ def narx_mimo_c(fitted: Any) -> CModel:
     return CModel(method="narx", inputs=tuple(fitted.input_names), targets=tuple(fitted.target_names),
                   u_lags=md.nk + md.nb, y_lags=md.na, body=body, constants=consts,
                   u_mean=fitted.u_mean, u_std=fitted.u_std, y_mean=fitted.y_mean, y_std=fitted.y_std,
-                  lower=fitted.envelope.lower, upper=fitted.envelope.upper)
+                  lower=fitted.envelope.lower, upper=fitted.envelope.upper, prelude=EB_CLIP + "\n")
 
 
 def naive_mean_c(fitted: Any) -> CModel:

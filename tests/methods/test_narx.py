@@ -1,5 +1,6 @@
 """Kernel NARX: the batched free run against a plain per-step reference, recovery of a known nonlinear
-system's free run, no measured output read after the init window, grid batching, divergence flags."""
+system's free run, no measured output read after the init window, grid batching, divergence flags, the
+kernel's regressors clipped to the training range."""
 
 from __future__ import annotations
 
@@ -30,11 +31,13 @@ def system(u: np.ndarray) -> np.ndarray:
     return y
 
 
-def nonlinear_raw(n_seg: int = 4, n: int = 300, seed: int = 0, lengths: tuple[int, ...] | None = None) -> RawSegments:
+def nonlinear_raw(n_seg: int = 4, n: int = 300, seed: int = 0, lengths: tuple[int, ...] | None = None,
+                  amplitude: float = 1.5) -> RawSegments:
+    """Records of ``system`` driven by uniform noise in +-``amplitude``."""
     rng = np.random.default_rng(seed)
     frames = []
     for k, size in enumerate(lengths or (n,) * n_seg):
-        u = rng.uniform(-1.5, 1.5, size)
+        u = rng.uniform(-amplitude, amplitude, size)
         frames.append(pd.DataFrame({"segment": f"s{k}", "time": np.arange(size) + 1000.0 * k, "u": u,
                                     "y": system(u) + 1.0}))
     ds = Dataset("nl", pd.concat(frames, ignore_index=True), Schema.from_roles({"u": "input", "y": "output"}), 1.0)
@@ -56,12 +59,14 @@ def fitted(data) -> NARXFit:
 
 
 def reference_run(fit: NARXFit, U: np.ndarray, window: np.ndarray) -> np.ndarray:
-    """The free run written out step by step: standardise, build z(t) (edge padded), linear part + kernel sum."""
-    m = fit.models[0]
+    """The free run written out step by step: standardise, build z(t) (edge padded, clipped to the kernel box),
+    linear part + kernel sum."""
+    m, box = fit.models[0], fit.kernel_box()
     ys = list((window[:, 0] - fit.y_mean[0]) / fit.y_std[0])
     us = (U[:, 0] - fit.u_mean[0]) / fit.u_std[0]
-    for t in range(len(window), len(U)):
-        z = np.r_[[ys[max(t - i, 0)] for i in range(m.ka, 0, -1)], [us[max(t - m.nk - l, 0)] for l in range(m.kb)]]
+    for t in range(len(window), len(U)):  # the kernel reads its regressors clipped to the training range
+        z = np.r_[[np.clip(ys[max(t - i, 0)], box.y_lo[0], box.y_hi[0]) for i in range(m.ka, 0, -1)],
+                  [np.clip(us[max(t - m.nk - l, 0)], box.u_lo[0], box.u_hi[0]) for l in range(m.kb)]]
         lin = sum(m.a[i - 1] * ys[max(t - i, 0)] for i in range(1, m.na + 1)) + m.c0 \
             + sum(m.b[0, l] * us[max(t - m.nk - l, 0)] for l in range(m.nb))
         ys.append(lin + float(np.exp(-m.gamma / m.d * ((m.centres - z) ** 2).sum(axis=1)) @ m.beta))
@@ -308,3 +313,60 @@ def test_regressors_at_drawn_rows_equal_those_rows_of_the_whole_lag_matrix():
     Zm, Ym = mimo_regressors(traj, na, nb, nk)
     Zmr, Ymr = mimo_regressors(traj, na, nb, nk, rows)
     assert Zmr.tobytes() == Zm[rows].tobytes() and Ymr.tobytes() == Ym[rows].tobytes()
+
+
+@pytest.fixture(scope="module")
+def beyond() -> Samples:
+    """Two records driven at twice the training amplitude: inputs and outputs leave the training range."""
+    return samples(nonlinear_raw(2, 300, seed=6, amplitude=3.0), init_samples=5)
+
+
+def test_beyond_the_training_range_the_kernel_reads_its_edge(fitted, beyond):
+    """The free run (batched over segments, and one segment alone) equals the reference with z(t) clipped to the
+    kernel box; the box is the training data's range, and it changes the run here (without it, the reference
+    unclipped)."""
+    train = samples(nonlinear_raw(3, 200, seed=0))
+    box = fitted.box
+    U, Y = np.vstack([s.U for s in train.segments]), np.vstack([s.y for s in train.segments])
+    np.testing.assert_allclose(box.u_lo * fitted.u_std + fitted.u_mean, U.min(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(box.y_hi * fitted.y_std + fitted.y_mean, Y.max(axis=0), rtol=1e-12)
+    view = beyond.without_targets()
+    pred = NARX().predict(fitted, view)
+    unclipped = NARX(kernel_box=False).predict(replace(fitted, box=None), view)
+    for k, seg in enumerate(beyond.segments):
+        assert np.abs(seg.U).max() > np.abs(U).max() * 1.5
+        np.testing.assert_allclose(pred[k][:, 0], reference_run(fitted, seg.U, seg.y_init)[5:], rtol=0, atol=1e-10)
+        alone = NARX().predict(fitted, replace(view, segments=(view.segments[k],)))
+        np.testing.assert_allclose(alone[0], pred[k], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(unclipped[k][:, 0], reference_run(replace(fitted, box=None), seg.U, seg.y_init)[5:],
+                                   rtol=0, atol=1e-9)
+        assert np.abs(unclipped[k] - pred[k]).max() > 1e-3
+
+
+def test_without_the_linear_part_inputs_past_the_range_act_as_the_range_edge():
+    """linear = false: the model reads the inputs only through the kernel, so driving it past the training range
+    gives exactly the run of the inputs clipped to that range."""
+    train = samples(nonlinear_raw(3, 200, seed=0))
+    fit = NARX(linear=False).fit(train, PARAMS, np.random.default_rng(0))
+    far = samples(nonlinear_raw(1, 300, seed=7, amplitude=4.0)).without_targets()
+    lo, hi = (fit.box.u_lo * fit.u_std + fit.u_mean)[0], (fit.box.u_hi * fit.u_std + fit.u_mean)[0]
+    edge = replace(far, segments=tuple(replace(s, U=np.clip(s.U, lo, hi)) for s in far.segments))
+    assert (np.abs(far.segments[0].U) > 1.5).mean() > 0.4
+    np.testing.assert_array_equal(NARX(linear=False).predict(fit, far)[0], NARX(linear=False).predict(fit, edge)[0])
+    assert not np.array_equal(NARX(linear=False).predict(replace(fit, box=None), far)[0],
+                              NARX(linear=False).predict(replace(fit, box=None), edge)[0])
+
+
+def test_the_c_step_clips_the_kernel_regressors_as_the_free_run_does(fitted, beyond):
+    from enginebench.methods.export.harness import compiler, run_c
+
+    if compiler() is None:
+        pytest.skip("no C compiler (gcc or cc) on this machine")
+    view = beyond.without_targets()
+    for fit in (fitted, replace(fitted, box=None)):
+        model = NARX().c_model(fit)
+        assert ("eb_clip(" in model.body) == (fit.box is not None)
+        for seg, pred in zip(view.segments, NARX().predict(fit, view)):
+            Y, _, diverged = run_c(model, seg.U, seg.y_init, len(seg.y_init))
+            assert not diverged
+            np.testing.assert_allclose(Y[len(seg.y_init):], pred, rtol=0, atol=1e-9 * np.abs(pred).max())

@@ -5,6 +5,8 @@ per output (reading only its own past and the inputs) cannot; grid batching equa
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -30,11 +32,11 @@ def coupled(u: np.ndarray) -> np.ndarray:
     return y
 
 
-def dataset(n_records: int, n: int, seed: int) -> Dataset:
+def dataset(n_records: int, n: int, seed: int, amplitude: float = 1.5) -> Dataset:
     rng = np.random.default_rng(seed)
     frames = []
     for k in range(n_records):
-        u = rng.uniform(-1.5, 1.5, n)
+        u = rng.uniform(-amplitude, amplitude, n)
         y = coupled(u)
         frames.append(pd.DataFrame({SEGMENT: f"r{k}", TIME: np.arange(n) * 0.1, "u": u, "y1": y[:, 0],
                                     "y2": 10.0 * y[:, 1] + 3.0}))
@@ -42,8 +44,8 @@ def dataset(n_records: int, n: int, seed: int) -> Dataset:
     return Dataset("coupled", pd.concat(frames, ignore_index=True), schema, 0.1, {})
 
 
-def raw(n_records: int, n: int, seed: int) -> RawSegments:
-    return RawSegments.from_dataset(dataset(n_records, n, seed))
+def raw(n_records: int, n: int, seed: int, amplitude: float = 1.5) -> RawSegments:
+    return RawSegments.from_dataset(dataset(n_records, n, seed, amplitude))
 
 
 def samples(r: RawSegments, targets: list[str], init: int = 0) -> Samples:
@@ -92,9 +94,11 @@ def reference_run(fit, U: np.ndarray, window: np.ndarray) -> np.ndarray:
     def u_at(t, j):
         return us[max(t, 0), j]
 
-    for t in range(len(window), len(U)):
-        z = [y_at(t - i, p) for p in range(k) for i in range(m.ka, 0, -1)]
-        z += [u_at(t - m.nk - l, j) for j in range(us.shape[1]) for l in range(m.kb)]
+    box = fit.kernel_box()
+    for t in range(len(window), len(U)):  # the kernel reads its regressors clipped to the training range
+        z = [np.clip(y_at(t - i, p), box.y_lo[p], box.y_hi[p]) for p in range(k) for i in range(m.ka, 0, -1)]
+        z += [np.clip(u_at(t - m.nk - l, j), box.u_lo[j], box.u_hi[j]) for j in range(us.shape[1])
+              for l in range(m.kb)]
         kern = np.exp(-m.gamma / m.d * ((m.centres - np.array(z)) ** 2).sum(axis=1)) @ m.beta
         new = []
         for o in range(k):
@@ -112,6 +116,26 @@ def test_the_batched_free_run_equals_the_step_by_step_reference(data, shared):
     assert not pred.diverged.any()
     for seg, p in zip(test.segments, pred):
         np.testing.assert_allclose(p, reference_run(shared, seg.U, seg.y_init)[5:], rtol=0, atol=1e-9)
+
+
+def test_beyond_the_training_range_the_shared_kernel_reads_its_edge(shared):
+    """Inputs at three times the training amplitude: the batched run equals the reference with the kernel's
+    regressors clipped to the training range (and the C step equals the run), and the clip changes the run."""
+    far = samples(raw(2, 300, 2, amplitude=4.5), ["y1", "y2"], init=5)
+    view = far.without_targets()
+    pred = NARX(shared_kernel=True).predict(shared, view)
+    loose = NARX(shared_kernel=True).predict(replace(shared, box=None), view)
+    for k, seg in enumerate(far.segments):
+        np.testing.assert_allclose(pred[k], reference_run(shared, seg.U, seg.y_init)[5:], rtol=0, atol=1e-9)
+        assert np.abs(loose[k] - pred[k]).max() > 1e-3
+    from enginebench.methods.export.harness import compiler, run_c
+
+    if compiler() is not None:
+        model = NARX(shared_kernel=True).c_model(shared)
+        for seg, p in zip(view.segments, pred):
+            Y, _, diverged = run_c(model, seg.U, seg.y_init, len(seg.y_init))
+            assert not diverged
+            np.testing.assert_allclose(Y[len(seg.y_init):], p, rtol=0, atol=1e-9 * np.abs(p).max())
 
 
 def test_an_output_driven_by_another_outputs_past_is_recovered_only_with_the_shared_kernel(data, shared):
