@@ -29,16 +29,16 @@ product); the |z|^2 terms are folded into both products (the history stores y an
 so the exponent is -(gamma/d) |z - c|^2 <= 0 exactly as written and f stays bounded; the
 linear part is added from the same history.
 
-The kernel reads its regressors clipped to the training data's box (``KernelBox``: each
-standardised input's and output's training minimum and maximum): inside the training
-data nothing changes, outside it the kernel sum holds the value it has at the box's edge
-and only the linear part extrapolates. Without the clip a Gaussian kernel sum fitted with
-little regularisation is a fine cancellation of large coefficients, which breaks down
-just past the data: on the F-16 records a model selected on excitation levels 1 and 3
-fitted level 2 at 55.6 % and the louder level 4 at -548 % (its outputs a third of the
-training span past the training range); clipped, 44 % (docs/benchmarks.md). The history
-holds the clipped outputs (and their squares) for the kernel, a second array the outputs
-themselves for the linear part. An unstable linear part can still blow a run
+With a ``KernelBox`` (narx's ``kernel_box = true``: each standardised input's and output's
+training minimum and maximum) the kernel reads its regressors clipped to it: inside the
+training data nothing changes, outside it the kernel sum holds the value it has at the
+box's edge and only the linear part extrapolates. A Gaussian kernel sum fitted with little
+regularisation is a fine cancellation of large coefficients, which can break down just past
+the data: on the F-16 records a model selected on excitation levels 1 and 3 fitted level 2
+at 55.6 % and the louder level 4 at -548 %; clipped, 40 %. Where the law must go on growing
+past the data (Silverbox's cubic stiffness) the clip costs instead (docs/benchmarks.md).
+The history holds the clipped outputs (and their squares) for the kernel, a second array
+the outputs themselves for the linear part. An unstable linear part can still blow a run
 up: a run leaving the envelope [min - e span, max + e span] of the training outputs, or
 turning non-finite, is flagged and held at its last in-envelope value
 (``methods/freerun.py``), as for ``sindy``.

@@ -316,18 +316,27 @@ def test_regressors_at_drawn_rows_equal_those_rows_of_the_whole_lag_matrix():
 
 
 @pytest.fixture(scope="module")
+def boxed(data) -> NARXFit:
+    """The fixture's model with ``kernel_box = true`` (off by default)."""
+    return NARX(kernel_box=True).fit(data[0], PARAMS, np.random.default_rng(0))
+
+
+@pytest.fixture(scope="module")
 def beyond() -> Samples:
     """Two records driven at twice the training amplitude: inputs and outputs leave the training range."""
     return samples(nonlinear_raw(2, 300, seed=6, amplitude=3.0), init_samples=5)
 
 
-def test_beyond_the_training_range_the_kernel_reads_its_edge(fitted, beyond):
+def test_beyond_the_training_range_the_kernel_reads_its_edge(fitted, boxed, beyond):
     """The free run (batched over segments, and one segment alone) equals the reference with z(t) clipped to the
     kernel box; the box is the training data's range, and it changes the run here (without it, the reference
     unclipped)."""
-    train = samples(nonlinear_raw(3, 200, seed=0))
+    assert fitted.box is None and NARX().describe(fitted)["kernel_box"] is None  # off by default
+    np.testing.assert_array_equal(boxed.models[0].beta, fitted.models[0].beta)  # the fit is the same
+    train, fitted = samples(nonlinear_raw(3, 200, seed=0)), boxed
     box = fitted.box
     U, Y = np.vstack([s.U for s in train.segments]), np.vstack([s.y for s in train.segments])
+    np.testing.assert_allclose(NARX().describe(fitted)["kernel_box"]["inputs"], [[U.min(), U.max()]], rtol=1e-12)
     np.testing.assert_allclose(box.u_lo * fitted.u_std + fitted.u_mean, U.min(axis=0), rtol=1e-12)
     np.testing.assert_allclose(box.y_hi * fitted.y_std + fitted.y_mean, Y.max(axis=0), rtol=1e-12)
     view = beyond.without_targets()
@@ -347,7 +356,7 @@ def test_without_the_linear_part_inputs_past_the_range_act_as_the_range_edge():
     """linear = false: the model reads the inputs only through the kernel, so driving it past the training range
     gives exactly the run of the inputs clipped to that range."""
     train = samples(nonlinear_raw(3, 200, seed=0))
-    fit = NARX(linear=False).fit(train, PARAMS, np.random.default_rng(0))
+    fit = NARX(linear=False, kernel_box=True).fit(train, PARAMS, np.random.default_rng(0))
     far = samples(nonlinear_raw(1, 300, seed=7, amplitude=4.0)).without_targets()
     lo, hi = (fit.box.u_lo * fit.u_std + fit.u_mean)[0], (fit.box.u_hi * fit.u_std + fit.u_mean)[0]
     edge = replace(far, segments=tuple(replace(s, U=np.clip(s.U, lo, hi)) for s in far.segments))
@@ -357,13 +366,13 @@ def test_without_the_linear_part_inputs_past_the_range_act_as_the_range_edge():
                               NARX(linear=False).predict(replace(fit, box=None), edge)[0])
 
 
-def test_the_c_step_clips_the_kernel_regressors_as_the_free_run_does(fitted, beyond):
+def test_the_c_step_clips_the_kernel_regressors_as_the_free_run_does(boxed, beyond):
     from enginebench.methods.export.harness import compiler, run_c
 
     if compiler() is None:
         pytest.skip("no C compiler (gcc or cc) on this machine")
     view = beyond.without_targets()
-    for fit in (fitted, replace(fitted, box=None)):
+    for fit in (boxed, replace(boxed, box=None)):
         model = NARX().c_model(fit)
         assert ("eb_clip(" in model.body) == (fit.box is not None)
         for seg, pred in zip(view.segments, NARX().predict(fit, view)):

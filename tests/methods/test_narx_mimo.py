@@ -118,9 +118,11 @@ def test_the_batched_free_run_equals_the_step_by_step_reference(data, shared):
         np.testing.assert_allclose(p, reference_run(shared, seg.U, seg.y_init)[5:], rtol=0, atol=1e-9)
 
 
-def test_beyond_the_training_range_the_shared_kernel_reads_its_edge(shared):
-    """Inputs at three times the training amplitude: the batched run equals the reference with the kernel's
-    regressors clipped to the training range (and the C step equals the run), and the clip changes the run."""
+def test_beyond_the_training_range_the_shared_kernel_reads_its_edge(data):
+    """``kernel_box = true``, inputs at three times the training amplitude: the batched run equals the reference
+    with the kernel's regressors clipped to the training range (and the C step equals the run), and the clip
+    changes the run."""
+    shared = NARX(shared_kernel=True, kernel_box=True).fit(data[0], PARAMS, np.random.default_rng(0))
     far = samples(raw(2, 300, 2, amplitude=4.5), ["y1", "y2"], init=5)
     view = far.without_targets()
     pred = NARX(shared_kernel=True).predict(shared, view)
