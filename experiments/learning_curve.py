@@ -49,6 +49,7 @@ from enginebench.experiments.engine import (
 )
 from enginebench.experiments.executors import check_executor
 from enginebench.experiments.jobs import Context, Job, Problem
+from enginebench.experiments.recorded_options import method_options
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.results.run_folder import Run
 from enginebench.results.stats import t_interval
@@ -267,7 +268,7 @@ def run_learning_curve(
     run = store.create(f"{spec.name}-learning-curve", config, digest, environment.capture(spec.seed, workers),
                        curve.n_jobs())
     run.update_info(kind="learning-curve", dataset_hash=curve.context.dataset_hash, units=context_units(curve.context),
-                    amounts=[{"months": a.months, "train_size": a.train_size, "available_rows": a.available_rows,
+                    method_options=method_options(curve.context), amounts=[{"months": a.months, "train_size": a.train_size, "available_rows": a.available_rows,
                               "hours": a.hours, "whole_training_period": a.whole} for a in curve.amounts])
     result = execute(curve.context, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
                      scheduler=scheduler)

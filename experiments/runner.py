@@ -24,6 +24,7 @@ from enginebench.experiments.engine import (
 from enginebench.experiments.executors import check_executor
 from enginebench.experiments.jobs import JOINT, Context, Problem, joint_methods
 from enginebench.experiments.learning_curve import curve_settings, prepare_curve
+from enginebench.experiments.recorded_options import method_options, with_recorded_options
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.method import TrainingShape
 from enginebench.results.run_folder import Run
@@ -98,7 +99,8 @@ def context_of_run(run: Run) -> Context:
         build = lambda: prepare(spec)  # noqa: E731
     if digest != run.info().get("config_hash"):
         raise StoreError(f"run {run.id}: its config.toml no longer matches its config hash; it cannot be resumed safely")
-    return build()
+    return with_recorded_options(build(), run)
+
 
 
 def run_experiment(
@@ -133,7 +135,8 @@ def run_experiment(
         spec = ctx.spec  # targets = "all" resolved
         run = store.create(spec.name, spec.to_dict(), spec.config_hash(), environment.capture(spec.seed, workers),
                            len(plan(ctx)), tags=tags)
-        run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx), range_coverage=ctx.coverage)
+        run.update_info(dataset_hash=ctx.dataset_hash, units=context_units(ctx), range_coverage=ctx.coverage,
+                        method_options=method_options(ctx))
         return execute(ctx, run, workers=workers, plugins=plugins, progress=progress, executor=executor,
                        scheduler=scheduler, executor_options=executor_options)
     state = resume.prepare_resume()  # refuses a damaged run, other plugin files, a second writer

@@ -25,6 +25,7 @@ import numpy as np
 
 from enginebench.errors import EngineBenchError, MethodError
 from enginebench.experiments.jobs import JOINT, Context, job_for, refit_stored_job, training_samples
+from enginebench.experiments.recorded_options import with_recorded_options
 from enginebench.experiments.runner import prepare
 from enginebench.experiments.spec import ExperimentSpec, from_dict
 from enginebench.method import EXPLAIN_WEIGHTS, Method
@@ -91,8 +92,10 @@ class Simulated:
 
 def prepared(run: Run, spec: ExperimentSpec, methods: Sequence[str] | None) -> tuple[Context, list[str]]:
     """A stored run's context prepared again, and the methods to re-fit: ``methods``, or all the run ran
-    (MethodError naming one it did not run). Both re-fits of the reports start here."""
-    ctx = prepare(spec)
+    (MethodError naming one it did not run). Both re-fits of the reports start here. The methods carry the
+    options the run recorded (``runner.with_recorded_options``), so a default changed since does not change
+    the model re-fitted."""
+    ctx = with_recorded_options(prepare(spec), run)
     chosen = list(methods) if methods else list(spec.methods)
     unknown = [m for m in chosen if m not in ctx.methods]
     if unknown:

@@ -219,3 +219,47 @@ def test_predictions_of_a_random_method_are_the_jobs_own_model(tmp_path):
         assert np.mean(np.abs(pred["truth"] - pred["prediction"])) == pytest.approx(mae, rel=1e-12)
         maes.append(mae)
     assert len(set(maes)) == 3  # the draws differ per repetition: the test would see a fresh draw
+
+
+OFFSET_PLUGIN = '''
+import numpy as np
+from enginebench.method import Method
+
+class Offsetter(Method):
+    """The training mean plus an option's offset; its default is a class attribute a test changes."""
+    name = "offsetter"
+    family = "baseline"
+    OFFSET = 1.0
+    @classmethod
+    def default_options(cls):
+        return {"offset": cls.OFFSET}
+    def fit(self, train, params, rng):
+        return np.mean(train.y, axis=0) + float(self.options["offset"])
+    def predict(self, fitted, data):
+        return [np.tile(fitted, (len(s), 1)) for s in data.segments]
+'''
+
+
+def test_a_refit_uses_the_options_the_run_recorded_after_a_default_changed(tmp_path, monkeypatch):
+    """run.json records every method's options, defaults included (experiments/recorded_options.py): a default
+    changed since the run (a new version) does not change the model Run.predictions re-fits; a recorded option
+    the method no longer has is one MethodError."""
+    from enginebench import registry
+
+    plugin = tmp_path / "offset.py"
+    plugin.write_text(OFFSET_PLUGIN)
+    data = write_dataset(make_toy(), tmp_path / "toy.parquet")
+    ran = run({**toy_experiment(data), "methods": {"offsetter": {}, "ridge": {}}}, store=tmp_path / "store",
+              workers=1, plugins=[plugin])
+    assert ran.info()["method_options"]["offsetter"] == {"offset": 1.0}
+    assert ran.info()["method_options"]["ridge"] == {"alpha_grid": [-6, 4, 21]}
+    raw = ran.metrics()
+    mae = raw[(raw.method == "offsetter") & (raw.repetition == 0) & (raw.split == "test") & (raw.metric == "mae")]
+    monkeypatch.setattr(registry.get("offsetter"), "OFFSET", 5.0)  # the default of a later version
+    pred = ran.predictions("offsetter", repetition=0)
+    assert np.mean(np.abs(pred["truth"] - pred["prediction"])) == pytest.approx(mae["value"].item(), rel=1e-12)
+    ran.update_info(method_options={**ran.info()["method_options"], "ridge": {"alpha_grid": [-6, 4, 21], "gone": 1}})
+    with pytest.raises(MethodError, match=r"^run .*: ridge's options as the run recorded them no longer fit this "
+                                          r"version of the method \(.*gone.*\); its jobs cannot be re-fitted or "
+                                          r"resumed here$"):
+        ran.predictions("ridge")
