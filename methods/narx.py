@@ -61,11 +61,12 @@ Defaults derived from the data:
 - exact up to 1,000 rows, else 500 Nystroem centres (on Silverbox 1,000 centres gave the
   same free-run error: at the small gammas selected the centres' kernel matrix has numerical
   rank ~100-250 anyway; a step costs half as much), on at most 100,000 regression rows
-  (``max_rows``; a uniform subsample above). It was 20,000: the linear part, fitted on the
-  same rows, carries a lightly damped system's 64 lags, and its free run is sensitive to
-  which rows it saw: on f16-gvt-quick's 32,768 rows the test fit went from 42.5 to 58.5 %
-  over five seeds' subsamples (the kernel switched off at gamma 1e-8), 50.11 % with every
-  row, for 10 % more time (docs/benchmarks.md). 100,000 rows of 500 centres are 400 MB.
+  (``max_rows``; a uniform subsample above; 100,000 rows of 500 centres are 400 MB). Above
+  it the linear part is fitted again on every row with the kernel sum held fixed
+  (``linear_on_all_rows``, streamed): it carries a lightly damped system's 64 lags, and its
+  free run is sensitive to which rows it saw (f16-gvt-quick, when the cap was 20,000: 42.5
+  to 58.5 % over five seeds' subsamples with the kernel switched off, 50.11 % with every
+  row; docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -81,8 +82,8 @@ from enginebench.methods.freerun import (ENVELOPE, GivenOrders, check_prediction
                                          training_trajectories)
 from enginebench.methods.numerics.kernels import check_positive
 from enginebench.methods.narx_model import (KernelBox, KernelModel, LinearBasis, MIMOModel, NARXFit, Standardised,
-                                            free_run, mimo_free_run, mimo_regressors, nystroem_ridge, regression_count,
-                                            regressors, standardise)
+                                            free_run, linear_on_all_rows, mimo_free_run, mimo_regressors,
+                                            nystroem_ridge, regression_count, regressors, standardise)
 from enginebench.samples import Samples
 
 NAME = "narx"
@@ -217,6 +218,7 @@ class NARX(GivenOrders, Method):
         """
         out: list[list[KernelModel | None]] = [[None] * k for _ in points]
         solver, n_rows, info = "exact", 0, {}
+        info_rows: dict[str, int] = {}
         linear = bool(self.options["linear"])
         c = len(std.u_mean)
         for (na, nb, nk), members in self._by_orders(points).items():
@@ -242,8 +244,13 @@ class NARX(GivenOrders, Method):
                 Phi = np.hstack([Z, np.ones((n_rows, 1))]) if linear else None
                 C, solver = self._centres(Zk, rng)  # one draw serves every gamma of these regressors
                 basis = LinearBasis(Phi) if Phi is not None else None  # one factorisation serves every gamma
-                for i, gamma, lam, beta, theta, rank in self._solutions(Zk, y, C, basis, points, members):
-                    info = {"kernel_rank": rank}
+                sols = list(self._solutions(Zk, y, C, basis, points, members))
+                if basis is not None and len(rows) < count:  # the linear part on every row (its long memory)
+                    sols = self._linear_on_all_rows(sols, lambda r, t=target, o=(na, nb, nk): regressors(
+                        std.traj, t, *o, rows=r), count, kcols, C, Zk.shape[1])
+                    info_rows = {"linear_rows": count}
+                for i, gamma, lam, beta, theta, rank in sols:
+                    info = {"kernel_rank": rank, **info_rows}
                     th = theta if theta is not None else np.zeros(Z.shape[1] + 1)
                     out[i][target] = KernelModel(
                         na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=np.ascontiguousarray(th[:na][::-1]),
@@ -251,6 +258,14 @@ class NARX(GivenOrders, Method):
                         centres=np.ascontiguousarray(C), beta=np.ascontiguousarray(beta), gamma=gamma, lam=lam,
                         target=target)
         return out, solver, n_rows, info  # type: ignore[return-value]
+
+    @staticmethod
+    def _linear_on_all_rows(sols: list, build: Any, count: int, kcols: list[int], C: np.ndarray, d: int) -> list:
+        """``sols`` with each linear part fitted again on all ``count`` rows, its kernel sum held fixed: the kernel
+        is solved on at most ``max_rows`` rows, the linear part (a lightly damped system's 64 lags, whose free run
+        is sensitive to which rows it saw) on every one (``narx_model.linear_on_all_rows``)."""
+        thetas = linear_on_all_rows(build, count, kcols, C, [(gamma / d, beta) for _, gamma, _, beta, _, _ in sols])
+        return [(i, gamma, lam, beta, theta, rank) for (i, gamma, lam, beta, _, rank), theta in zip(sols, thetas)]
 
     def _shared(self, k: int) -> bool:
         return bool(self.options["shared_kernel"]) and k > 1
@@ -262,6 +277,7 @@ class NARX(GivenOrders, Method):
         order, one kernel factorisation per (order, gamma) solved for every output and lambda at once."""
         out: list[MIMOModel | None] = [None] * len(points)
         solver, n_rows, info = "exact", 0, {}
+        info_rows: dict[str, int] = {}
         linear = bool(self.options["linear"])
         c = len(std.u_mean)
         for (na, nb, nk), members in self._by_orders(points).items():
@@ -282,8 +298,13 @@ class NARX(GivenOrders, Method):
             Zk = np.ascontiguousarray(Z[:, kcols])
             basis = LinearBasis(np.hstack([Z, np.ones((n_rows, 1))])) if linear else None
             C, solver = self._centres(Zk, rng)
-            for i, gamma, lam, beta, theta, rank in self._solutions(Zk, Y, C, basis, points, members):
-                info = {"kernel_rank": rank}
+            sols = list(self._solutions(Zk, Y, C, basis, points, members))
+            if basis is not None and len(rows) < count:  # the linear part on every row (its long memory)
+                sols = self._linear_on_all_rows(sols, lambda r, o=(na, nb, nk): mimo_regressors(std.traj, *o, rows=r),
+                                                count, kcols, C, Zk.shape[1])
+                info_rows = {"linear_rows": count}
+            for i, gamma, lam, beta, theta, rank in sols:
+                info = {"kernel_rank": rank, **info_rows}
                 th = theta if theta is not None else np.zeros((Z.shape[1] + 1, k))
                 a = np.stack([th[[p * na + na - lag for p in range(k)]] for lag in range(1, na + 1)])
                 out[i] = MIMOModel(na=na, nb=nb, nk=nk, ka=ka, kb=kb, a=a,

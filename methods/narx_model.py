@@ -565,6 +565,46 @@ def _mimo_free_run(models: Sequence[MIMOModel], inputs: Sequence[np.ndarray], wi
     return out
 
 
+def linear_on_all_rows(build: Any, count: int, kcols: Sequence[int], C: np.ndarray,
+                       solved: Sequence[tuple[float, np.ndarray]], block_rows: int = 8192) -> list[np.ndarray]:
+    """The linear part fitted again on every one of ``count`` regression rows, each kernel sum held fixed.
+
+    For a fit whose kernel was solved on a row subsample (``max_rows``): ``solved`` lists (gamma
+    per regressor, beta) of the kernel sums; each gets theta = argmin |Phi theta - (y - K(z, C) beta)|
+    over all rows, Phi the lag rows with a constant. ``build(rows)`` gives the regressors and
+    targets of those rows (sorted indices into the ``count`` rows). Streamed in blocks: a QR
+    of [Phi | right-hand sides] is updated block by block (each block stacked under the R so
+    far), never the whole matrix, so the rows can be many more than fit in memory as one
+    matrix, and no normal equations square the lag matrix's condition number. Minimum-norm
+    least squares (LAPACK gelsd) on R where the lags are collinear. Returns theta per solved
+    sum, (p,) for one target's y, (p, k) for k outputs.
+    """
+    R = None
+    shapes = []
+    for a in range(0, count, block_rows):
+        Z, y = build(np.arange(a, min(count, a + block_rows)))
+        Y = y.reshape(len(y), -1)
+        D = sq_distances(Z[:, kcols], C)
+        kernels: dict[float, np.ndarray] = {}
+        rhs = []
+        for gamma, beta in solved:
+            if gamma not in kernels:
+                kernels[gamma] = gaussian(D, gamma)
+            rhs.append(Y - kernels[gamma] @ beta.reshape(len(C), -1))
+        shapes = [np.shape(beta)[1:] for _, beta in solved]
+        M = np.hstack([Z, np.ones((len(Z), 1)), *rhs])
+        R = scipy.linalg.qr(M if R is None else np.vstack([R, M]), mode="r", check_finite=False)[0][:M.shape[1]]
+    assert R is not None
+    p = R.shape[1] - sum(int(np.prod(sh)) if sh else 1 for sh in shapes)
+    thetas = scipy.linalg.lstsq(R[:p, :p], R[:p, p:], lapack_driver="gelsd", check_finite=False)[0]
+    out, at = [], 0
+    for sh in shapes:
+        width = int(np.prod(sh)) if sh else 1
+        out.append(thetas[:, at:at + width].reshape((p, *sh)))
+        at += width
+    return out
+
+
 class LinearBasis:
     """The unpenalised linear regressors Phi (n, p) of ``nystroem_ridge``, factorised once (pivoted QR).
 

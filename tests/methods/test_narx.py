@@ -379,3 +379,51 @@ def test_the_c_step_clips_the_kernel_regressors_as_the_free_run_does(boxed, beyo
             Y, _, diverged = run_c(model, seg.U, seg.y_init, len(seg.y_init))
             assert not diverged
             np.testing.assert_allclose(Y[len(seg.y_init):], pred, rtol=0, atol=1e-9 * np.abs(pred).max())
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_a_row_subsample_fits_the_kernel_and_every_row_the_linear_part(shared):
+    """With more regression rows than ``max_rows`` the kernel is solved on a subsample and the linear part is
+    fitted again on every row with the kernel sum held fixed: theta equals the least squares of the whole lag
+    matrix against y - K(z, C) beta (numpy's lstsq), here in several of the streamed QR's blocks."""
+    from enginebench.methods.freerun import training_trajectories
+    from enginebench.methods.narx_model import linear_on_all_rows, mimo_regressors, regressors, standardise
+    from enginebench.methods.numerics.kernels import gaussian, sq_distances
+
+    train = samples(nonlinear_raw(3, 200, seed=0))
+    two = SamplePool(RawSegments.from_dataset(_two_outputs(nonlinear_raw(3, 200, seed=0))), ["y", "y2"],
+                     "simulation").materialize()
+    data = two if shared else train
+    fit = NARX(max_rows=150, shared_kernel=shared).fit(data, PARAMS, np.random.default_rng(0))
+    std = standardise(training_trajectories("narx", data), 1.0)
+    na = nb = 2
+    Z, y = mimo_regressors(std.traj, na, nb, 0) if shared else regressors(std.traj, 0, na, nb, 0)
+    assert len(y) == 3 * 198 and fit.info["linear_rows"] == len(y) and fit.n_rows == 150
+    m = fit.mimo if shared else fit.models[0]
+    K = gaussian(sq_distances(Z, m.centres), m.gamma / m.d)  # ka = na, kb = nb: the kernel reads every lag
+    want = np.linalg.lstsq(np.hstack([Z, np.ones((len(Z), 1))]), y - K @ m.beta, rcond=None)[0]
+    if shared:
+        got_a = np.stack([want[[p * na + na - lag for p in range(2)]] for lag in range(1, na + 1)])
+        np.testing.assert_allclose(m.a, got_a, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(m.c0, want[-1], rtol=0, atol=1e-9)
+    else:
+        np.testing.assert_allclose(np.r_[m.a[::-1], m.b.ravel(), m.c0], want, rtol=0, atol=1e-9)
+    # the streamed QR in blocks of 50 rows equals one solve
+    build = (lambda r: mimo_regressors(std.traj, na, nb, 0, rows=r)) if shared else \
+        (lambda r: regressors(std.traj, 0, na, nb, 0, rows=r))
+    cols = list(range(Z.shape[1]))
+    whole = linear_on_all_rows(build, len(y), cols, m.centres, [(m.gamma / m.d, m.beta)], block_rows=len(y))[0]
+    blocks = linear_on_all_rows(build, len(y), cols, m.centres, [(m.gamma / m.d, m.beta)], block_rows=50)[0]
+    np.testing.assert_allclose(blocks, whole, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(whole.reshape(len(want), -1), want.reshape(len(want), -1), rtol=0, atol=1e-9)
+
+
+def _two_outputs(raw: RawSegments) -> Dataset:
+    """``raw``'s records with a second output, y2(t) = 0.5 y(t-1)^2 (the MIMO path needs two)."""
+    frames = []
+    for seg in raw.segments:
+        y = seg.Y[:, 0]
+        frames.append(pd.DataFrame({"segment": seg.id, "time": seg.t, "u": seg.U[:, 0], "y": y,
+                                    "y2": 0.5 * np.r_[y[0], y[:-1]] ** 2}))
+    return Dataset("nl2", pd.concat(frames, ignore_index=True),
+                   Schema.from_roles({"u": "input", "y": "output", "y2": "output"}), 1.0)
