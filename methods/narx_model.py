@@ -14,8 +14,9 @@ projected out, one eigendecomposition per gamma serves every lambda).
 Direct, because free-run selection prefers small gamma and lambda, where FALKON's
 conjugate gradient had not converged after 50 iterations on Silverbox (relative residual
 0.016 at gamma = 0.03, lambda = 1e-10): its early stop would be a hidden regulariser.
-Training sets larger than ``max_rows`` rows are subsampled uniformly (rows are independent
-regression pairs one step ahead). A simulated step costs O(centres x d), never
+Training sets larger than ``max_rows`` rows are subsampled uniformly for the joint solve (rows
+are independent regression pairs one step ahead), and the linear part is then fitted again on
+every row with the kernel sum held fixed (``linear_on_all_rows``). A simulated step costs O(centres x d), never
 O(training rows).
 
 Free run (``free_run``): the first lagged outputs are the init window's measured ones
