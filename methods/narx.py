@@ -60,13 +60,14 @@ Defaults derived from the data:
   signals' units, the sampling rate or the record length.
 - exact up to 1,000 rows, else 500 Nystroem centres (on Silverbox 1,000 centres gave the
   same free-run error: at the small gammas selected the centres' kernel matrix has numerical
-  rank ~100-250 anyway; a step costs half as much), on at most 100,000 regression rows
-  (``max_rows``; a uniform subsample above; 100,000 rows of 500 centres are 400 MB). Above
-  it the linear part is fitted again on every row with the kernel sum held fixed
-  (``linear_on_all_rows``, streamed): it carries a lightly damped system's 64 lags, and its
-  free run is sensitive to which rows it saw (f16-gvt-quick, when the cap was 20,000: 42.5
-  to 58.5 % over five seeds' subsamples with the kernel switched off, 50.11 % with every
-  row; docs/benchmarks.md).
+  rank ~100-250 anyway; a step costs half as much), solved on at most 20,000 regression
+  rows (``max_rows``; a uniform subsample above). Above it the linear part is fitted again
+  on every row with the kernel sum held fixed (``linear_on_all_rows``, streamed): it
+  carries a lightly damped system's 64 lags, and its free run is sensitive to which rows it
+  saw (f16-gvt-quick: 42.5 to 58.5 % over five seeds' subsamples with the kernel switched
+  off, 50.11 % with every row). ``max_rows = 100000`` solved the kernel on five times the
+  rows: Silverbox 0.394 instead of 0.432 mV, the engine campaign's hc 0.494 instead of
+  0.547, at 1.5x narx's time there (its 20-minute budget; docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -125,7 +126,8 @@ class NARX(GivenOrders, Method):
         whole("exact_max_rows", 1000, "every regression row a kernel centre up to this many rows, Nystroem centres "
               "above", low=1, unit="rows"),
         whole("centres", 500, "Nystroem centres (the cost of one simulated step)", low=1, unit="rows"),
-        whole("max_rows", 100000, "regression rows used (a uniform subsample above; 0 = all)", low=0, unit="rows"),
+        whole("max_rows", 20000, "regression rows the kernel is solved on (a uniform subsample above, the linear "
+              "part then fitted again on every row; 0 = all)", low=0, unit="rows"),
         ENVELOPE,
     )
 
