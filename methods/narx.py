@@ -67,7 +67,7 @@ Defaults derived from the data:
   saw (f16-gvt-quick: 42.5 to 58.5 % over five seeds' subsamples with the kernel switched
   off, 50.11 % with every row). ``max_rows = 100000`` solved the kernel on five times the
   rows: Silverbox 0.394 instead of 0.432 mV, the engine campaign's hc 0.494 instead of
-  0.547, at 1.5x narx's time there (its 20-minute budget; docs/benchmarks.md).
+  0.547, at 1.8x narx's time there (its 20-minute budget; docs/benchmarks.md).
 """
 
 from __future__ import annotations
