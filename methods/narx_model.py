@@ -580,30 +580,24 @@ def linear_on_all_rows(build: Any, count: int, kcols: Sequence[int], C: np.ndarr
     least squares (LAPACK gelsd) on R where the lags are collinear. Returns theta per solved
     sum, (p,) for one target's y, (p, k) for k outputs.
     """
+    gammas = list(dict.fromkeys(gamma for gamma, _ in solved))
+    # per gamma, its sums' coefficients side by side (m, columns): one kernel and one product per block
+    by_gamma = [np.hstack([beta.reshape(len(C), -1) for g, beta in solved if g == gamma]) for gamma in gammas]
     R = None
-    shapes = []
     for a in range(0, count, block_rows):
         Z, y = build(np.arange(a, min(count, a + block_rows)))
         Y = y.reshape(len(y), -1)
         D = sq_distances(Z[:, kcols], C)
-        kernels: dict[float, np.ndarray] = {}
-        rhs = []
-        for gamma, beta in solved:
-            if gamma not in kernels:
-                kernels[gamma] = gaussian(D, gamma)
-            rhs.append(Y - kernels[gamma] @ beta.reshape(len(C), -1))
-        shapes = [np.shape(beta)[1:] for _, beta in solved]
+        rhs = [np.tile(Y, B.shape[1] // Y.shape[1]) - gaussian(D, gamma) @ B for gamma, B in zip(gammas, by_gamma)]
         M = np.hstack([Z, np.ones((len(Z), 1)), *rhs])
         R = scipy.linalg.qr(M if R is None else np.vstack([R, M]), mode="r", check_finite=False)[0][:M.shape[1]]
     assert R is not None
-    p = R.shape[1] - sum(int(np.prod(sh)) if sh else 1 for sh in shapes)
+    p = R.shape[1] - sum(B.shape[1] for B in by_gamma)
     thetas = scipy.linalg.lstsq(R[:p, :p], R[:p, p:], lapack_driver="gelsd", check_finite=False)[0]
-    out, at = [], 0
-    for sh in shapes:
-        width = int(np.prod(sh)) if sh else 1
-        out.append(thetas[:, at:at + width].reshape((p, *sh)))
-        at += width
-    return out
+    columns = iter(np.split(thetas, np.cumsum([B.shape[1] for B in by_gamma])[:-1], axis=1))
+    per_gamma = {gamma: iter(np.split(next(columns), B.shape[1] // Y.shape[1], axis=1))
+                 for gamma, B in zip(gammas, by_gamma)}
+    return [next(per_gamma[gamma]).reshape((p, *np.shape(beta)[1:])) for gamma, beta in solved]
 
 
 class LinearBasis:
