@@ -47,6 +47,7 @@ def _any_text(value: Any) -> str:
     return value
 
 
+DECIMALS = (".", ",")
 DELIMITER = '{name} must be one character such as "," ";" or "\\t", or "whitespace", got {value}'
 SECONDS = "{name} must be a positive number of seconds, got {value}"
 MAX_DT = 1e7
@@ -73,8 +74,12 @@ KEYS = Declaration(
     text("rate_column", None, "a sample-rate column checked against dt, never imported", unit="Hz"),
     text("period_column", None, "a sample-period column checked against dt, never imported", unit="s"),
     anything("delimiter", None, "CSV delimiter, one character or \"whitespace\" (runs of spaces or tabs); default a "
-             "tab for .tsv files, else a comma",
+             "tab for .tsv files, else a comma (a semicolon with decimal = \",\")",
              check=_delimiter, type_label="str | None"),
+    choice("decimal", ".", "the CSV files' decimal mark: \",\" for files written with a decimal comma", DECIMALS,
+           message='{name} must be "." or ",", got {value}'),
+    flag("units_row", False, "the CSV files' second line holds each field's unit (test-bench exports): it is not "
+         "data; a declared column without a unit takes the file's, a different declared unit is an error"),
     anything("provenance", "", "where the data come from", check=_any_text),
     anything("licence", "", "the data's licence", check=_any_text),
     whole("min_segment_rows", 2, "shortest segment accepted", low=1, unit="rows"),
@@ -141,6 +146,8 @@ class ImportSpec:
     header: bool = True
     names: tuple[str, ...] = ()
     """With ``header`` false: the field names of every file, in file order ("" for a field not read)."""
+    decimal: str = "."
+    units_row: bool = False
 
     def field_name(self, position: int) -> str:
         """The name of a headerless file's field at 0-based ``position``."""
@@ -149,10 +156,12 @@ class ImportSpec:
         return POSITIONAL.format(position + 1)
 
     def delimiter_for(self, file: Path) -> str:
-        """The declared delimiter, else a tab for .tsv files and a comma otherwise."""
+        """The declared delimiter, else a tab for .tsv files, a semicolon with a decimal comma, a comma otherwise."""
         if self.delimiter is not None:
             return self.delimiter
-        return "\t" if file.suffix.lower() == ".tsv" else ","
+        if file.suffix.lower() == ".tsv":
+            return "\t"
+        return ";" if self.decimal == "," else ","
 
     @property
     def group_key(self) -> str | None:
@@ -437,7 +446,14 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
     if not schema.outputs:
         raise SpecError(f'{path}: no column has role = "output"; declare at least one target in [columns]')
     header = v["header"]
+    decimal, units_row = v["decimal"], v["units_row"]
+    if units_row and not header:
+        raise SpecError(f"{path}: units_row = true with header = false; a units row follows a header row: "
+                        "set header = true, or remove units_row (declare the units in [columns])")
     names = _names(path, doc, schema, time, header)
+    if decimal == "," and delimiter == ",":
+        raise SpecError(f'{path}: decimal = "," with delimiter = ","; a decimal comma needs another delimiter: '
+                        'set delimiter = ";" (the default with decimal = ","), "\\t" or "whitespace"')
     if not header and files:
         absent = [c for c in (*schema.names(), *([time] if time else []), *([group] if group else [])) if c not in names]
         if absent:
@@ -483,4 +499,6 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         physical_model=parse_physical_model(doc.get("physical_model"), path),
         header=header,
         names=names,
+        decimal=decimal,
+        units_row=units_row,
     )

@@ -22,6 +22,9 @@ relative to the spec file. Every key::
     rate_column = "SampleRate"         # optional: a column holding the sampling rate (Hz), checked against dt
     period_column = "Period"           # optional: a column holding the sample period (s), checked against dt
     delimiter = ","                    # optional (default ",", or tab for .tsv files); "whitespace": runs of spaces/tabs
+    decimal = ","                      # optional (default "."): a decimal comma; the delimiter then defaults to ";"
+    units_row = true                   # optional: line 2 of each CSV file holds the fields' units (not data); a
+                                       # column declared without a unit takes the file's, a different one is an error
     provenance = "test bench B, 2024"  # optional, free text
     licence = "CC BY 4.0"              # optional
     min_segment_rows = 2               # optional: shorter records are an error ...
@@ -64,7 +67,8 @@ checked against ``dt`` (see :mod:`enginebench.datasets.column_notes`).
 ``datetime`` stamps must all carry one UTC offset (or none, read as UTC); the dataset's
 time is then seconds since 1970-01-01 UTC. A unit left out of the spec is taken from a
 Parquet file that records one (enginebench metadata or an Arrow field's ``unit``
-metadata); a declared unit that differs from a recorded one is an error.
+metadata) or from the units row of a CSV file with ``units_row = true``; a declared unit that
+differs from a recorded one is an error.
 
 Every error is a one-line :class:`SpecError` (the spec, see
 :mod:`enginebench.datasets.import_spec`) or :class:`DataError` (a data file) whose message

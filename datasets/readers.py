@@ -133,7 +133,8 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
         with open(file, encoding="utf-8-sig", newline="") as fh:
             first = fh.readline()
             second = fh.readline()
-            rest_blank = not first.strip() and not second.strip() and not fh.read(1 << 16).strip()
+            third = fh.readline()
+            rest_blank = not first.strip() and not second.strip() and not third.strip() and not fh.read(1 << 16).strip()
     except UnicodeDecodeError as exc:
         raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
     if not first.strip():
@@ -144,21 +145,79 @@ def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols:
     if not spec.header:
         return _read_headerless(file, spec, required, text_cols, fields, delim)
     header = fields
-    _no_header_hint(file, header, required)
+    _no_header_hint(file, header, required, spec.decimal)
     pos = _check_header(file, header, required, delim)
+    units: dict[str, str] = {}
+    if spec.units_row:
+        units = _units_row(file, header, _fields(second, delim) if second.strip() else [], delim)
+        second = third
+    else:
+        _units_row_hint(file, header, pos, required, text_cols, second, third, delim, spec.decimal)
     first_texts = None
     if second.strip():
         first_texts = [f.strip() for f in _fields(second, delim)]
-    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=True)
-    return FileTable(raw, header, np.arange(2, len(raw) + 2), "line", {}, first_texts, pos)
+    skip = 1 if spec.units_row else 0
+    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=True, skip=skip,
+                        decimal=spec.decimal)
+    return FileTable(raw, header, np.arange(2 + skip, len(raw) + 2 + skip), "line", units, first_texts, pos)
+
+
+_BRACKETED = re.compile(r"^\s*[\[(](.*)[\])]\s*$")
+
+
+def _units_row(file: Path, header: list[str], fields: list[str], delim: str) -> dict[str, str]:
+    """Line 2 of a file with ``units_row``: each named field's unit ("[rpm]" and "(rpm)" read as "rpm")."""
+    if len(fields) != len(header):
+        raise DataError(
+            f"{file}, line 2: the units row has {len(fields)} fields where the header has {len(header)}; "
+            "give every field a unit (blank for none), or remove units_row from the spec if line 2 is data"
+        )
+    units = {}
+    for name, raw in zip(header, fields):
+        unit = raw.strip()
+        m = _BRACKETED.match(unit)
+        unit = m.group(1).strip() if m else unit
+        if name and unit:
+            units[name] = unit
+    return units
+
+
+def _is_number(text: str, decimal: str) -> bool:
+    try:
+        float(text.strip().replace(decimal, "."))
+    except ValueError:
+        return False
+    return True
+
+
+def _units_row_hint(file: Path, header: list[str], pos: dict[str, int], required: dict[str, str],
+                    text_cols: list[str], second: str, third: str, delim: str, decimal: str) -> None:
+    """Line 2 holding text in every numeric column the spec reads while line 3 holds numbers: a units row the
+    spec does not declare; say so and what to set (instead of "'rpm' is not a number")."""
+    if not second.strip() or not third.strip():
+        return
+    line2, line3 = _fields(second, delim), _fields(third, delim)
+    numeric = [pos[c] for c in required if c not in text_cols and pos[c] < min(len(line2), len(line3))]
+    if not numeric:
+        return
+    texts = [line2[i].strip() for i in numeric]
+    if any(_is_number(t, decimal) for t in texts if t) or not any(texts):
+        return
+    if not all(_is_number(line3[i], decimal) for i in numeric if line3[i].strip()):
+        return
+    shown = ", ".join(repr(t) for t in texts[:4]) + (", ..." if len(texts) > 4 else "")
+    raise DataError(
+        f"{file}, line 2: text where the spec reads numbers ({shown}) and numbers on line 3: a units row? "
+        "set units_row = true in the spec (the units are then read from it)"
+    )
 
 
 def _parse_fields(file: Path, delim: str, header: list[str], pos: dict[str, int], required: dict[str, str],
-                  text_cols: list[str], *, header_row: bool) -> pd.DataFrame:
+                  text_cols: list[str], *, header_row: bool, skip: int = 0, decimal: str = ".") -> pd.DataFrame:
     """The file's cells (``_parse_csv``), text columns as text; a float column that overflowed holds inf where
     the file holds text such as 1e309: it is re-read as text so that the error quotes the value as written."""
     text_pos = sorted({pos[c] for c in text_cols})
-    raw = _parse_csv(file, delim, len(header), text_pos, header_row=header_row)
+    raw = _parse_csv(file, delim, len(header), text_pos, header_row=header_row, skip=skip, decimal=decimal)
     overflow = [
         pos[c]
         for c in required
@@ -166,8 +225,14 @@ def _parse_fields(file: Path, delim: str, header: list[str], pos: dict[str, int]
         and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
         and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
     ]
+    if decimal != ".":  # a column pandas left as text (a bad cell in it) is checked with '.' decimals
+        for c in required:
+            col = f"c{pos[c]}"
+            if pos[c] not in text_pos and not pd.api.types.is_numeric_dtype(raw[col].dtype):
+                raw[col] = raw[col].str.replace(decimal, ".", regex=False)
     if overflow:
-        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)), header_row=header_row)
+        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)), header_row=header_row,
+                         skip=skip, decimal=decimal)
     return raw
 
 
@@ -183,13 +248,11 @@ def _fields(line: str, delim: str) -> list[str]:
         csv.field_size_limit(limit)
 
 
-def _no_header_hint(file: Path, header: list[str], required: dict[str, str]) -> None:
+def _no_header_hint(file: Path, header: list[str], required: dict[str, str], decimal: str) -> None:
     """A first line of numbers read as a header: the file has no header row; say so and what to set."""
     if all(h in header for h in required) or not header:
         return
-    try:
-        [float(h) for h in header]
-    except ValueError:
+    if not all(_is_number(h, decimal) for h in header):
         return
     raise DataError(
         f"{file}, line 1: holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), not column "
@@ -211,7 +274,7 @@ def _read_headerless(file: Path, spec: ImportSpec, required: dict[str, str], tex
             "give every field its name in file order (names = [...], or the [columns] order)"
         )
     pos = {h: i for i, h in enumerate(header)}
-    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=False)
+    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=False, decimal=spec.decimal)
     return FileTable(raw, header, np.arange(1, len(raw) + 1), "line", {}, first, pos)
 
 
@@ -220,7 +283,8 @@ def _field_position(spec: ImportSpec, name: str) -> str:
     return str(at[0]) if at else "?"
 
 
-def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, header_row: bool = True) -> pd.DataFrame:
+def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, header_row: bool = True, skip: int = 0,
+               decimal: str = ".") -> pd.DataFrame:
     """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
 
     Columns holding anything that is not a number come back as text, which
@@ -236,6 +300,8 @@ def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, he
             index_col=False,
             dtype={f"c{i}": str for i in text_pos},
             skip_blank_lines=False,
+            skiprows=[1] if skip else None,
+            decimal=decimal,
             encoding="utf-8-sig",
         )
     except pd.errors.ParserError as exc:
@@ -244,7 +310,7 @@ def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, he
             raise DataError(
                 f"{file}, line {m.group(2)}: {m.group(3)} fields where the "
                 f"{'header' if header_row else 'first line'} has {m.group(1)} "
-                "(a stray delimiter or a decimal comma?); fix the row"
+                "(a stray delimiter, or decimal commas: then set decimal = \",\" and the file's delimiter); fix the row"
             ) from exc
         raise DataError(f"{file}: cannot parse the CSV ({one_line(str(exc))}); check delimiter and quoting") from exc
     except UnicodeDecodeError as exc:

@@ -147,7 +147,7 @@ def parse_numbers(
         i = _first(bad, lines)
         raw = values.iloc[i]
         comma = isinstance(raw, str) and _DECIMAL_COMMA.match(raw)
-        hint = " (a decimal comma? write decimals with '.')" if comma else ""
+        hint = ' (a decimal comma? set decimal = "," in the import spec)' if comma else ""
         raise DataError(
             f"{source}, column {column!r}, {word} {lines[i]}: {show_cell(raw)!r} is not a number{hint}; "
             "fix or remove the value"

@@ -29,7 +29,7 @@ GOOD = DATA / "good"
 
 ALLOWED = (
     "name, dt, columns, files, header, names, records, time, time_unit, gap_tolerance, segment, record, rate_column, "
-    "period_column, delimiter, provenance, licence, min_segment_rows, drop_short_segments, dt_tolerance, physical_model"
+    "period_column, delimiter, decimal, units_row, provenance, licence, min_segment_rows, drop_short_segments, dt_tolerance, physical_model"
 )
 CASES: dict[str, tuple[type[EngineBenchError], str]] = {
     "wrong_delimiter": (
@@ -117,7 +117,7 @@ CASES: dict[str, tuple[type[EngineBenchError], str]] = {
     "missing_value": (DataError, "{dir}/data.csv, column 'speed', line 5: missing value; fill it or remove the row"),
     "extra_field": (
         DataError,
-        "{dir}/data.csv, line 4: 4 fields where the header has 3 (a stray delimiter or a decimal comma?); fix the row",
+        "{dir}/data.csv, line 4: 4 fields where the header has 3 (a stray delimiter, or decimal commas: then set decimal = \",\" and the file's delimiter); fix the row",
     ),
     "bad_datetime": (
         DataError,
