@@ -9,6 +9,7 @@ mistake is one :class:`SpecError` line starting with the spec's path.
 
 from __future__ import annotations
 
+import codecs
 import difflib
 import glob
 import json
@@ -78,8 +79,11 @@ KEYS = Declaration(
              check=_delimiter, type_label="str | None"),
     choice("decimal", ".", "the CSV files' decimal mark: \",\" for files written with a decimal comma", DECIMALS,
            message='{name} must be "." or ",", got {value}'),
-    flag("units_row", False, "the CSV files' second line holds each field's unit (test-bench exports): it is not "
-         "data; a declared column without a unit takes the file's, a different declared unit is an error"),
+    text("encoding", "utf-8", "the CSV files' text encoding (\"cp1252\" or \"latin-1\" for many Windows exports)"),
+    whole("skip_lines", 0, "lines above the header (or, with header = false, above the data) that are not read: "
+          "a test bench's preamble", low=0, unit="lines"),
+    flag("units_row", False, "the line under the CSV files' header holds each field's unit (test-bench exports): "
+         "it is not data; a declared column without a unit takes the file's, a different declared unit is an error"),
     anything("provenance", "", "where the data come from", check=_any_text),
     anything("licence", "", "the data's licence", check=_any_text),
     whole("min_segment_rows", 2, "shortest segment accepted", low=1, unit="rows"),
@@ -148,6 +152,8 @@ class ImportSpec:
     """With ``header`` false: the field names of every file, in file order ("" for a field not read)."""
     decimal: str = "."
     units_row: bool = False
+    encoding: str = "utf-8"
+    skip_lines: int = 0
 
     def field_name(self, position: int) -> str:
         """The name of a headerless file's field at 0-based ``position``."""
@@ -447,6 +453,12 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         raise SpecError(f'{path}: no column has role = "output"; declare at least one target in [columns]')
     header = v["header"]
     decimal, units_row = v["decimal"], v["units_row"]
+    encoding = v["encoding"]
+    try:
+        codecs.lookup(encoding)
+    except LookupError:
+        raise SpecError(f'{path}: encoding = {json.dumps(encoding)} is not a text encoding Python knows; use e.g. '
+                        '"utf-8" (the default), "cp1252" or "latin-1"') from None
     if units_row and not header:
         raise SpecError(f"{path}: units_row = true with header = false; a units row follows a header row: "
                         "set header = true, or remove units_row (declare the units in [columns])")
@@ -501,4 +513,6 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         names=names,
         decimal=decimal,
         units_row=units_row,
+        encoding=encoding,
+        skip_lines=int(v["skip_lines"]),
     )

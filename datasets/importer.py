@@ -23,7 +23,9 @@ relative to the spec file. Every key::
     period_column = "Period"           # optional: a column holding the sample period (s), checked against dt
     delimiter = ","                    # optional (default ",", or tab for .tsv files); "whitespace": runs of spaces/tabs
     decimal = ","                      # optional (default "."): a decimal comma; the delimiter then defaults to ";"
-    units_row = true                   # optional: line 2 of each CSV file holds the fields' units (not data); a
+    encoding = "cp1252"                # optional (default "utf-8"): the CSV files' text encoding
+    skip_lines = 3                     # optional (default 0): a preamble above the header, not read
+    units_row = true                   # optional: the line under the header holds the fields' units (not data); a
                                        # column declared without a unit takes the file's, a different one is an error
     provenance = "test bench B, 2024"  # optional, free text
     licence = "CC BY 4.0"              # optional

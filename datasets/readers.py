@@ -116,10 +116,11 @@ def too_few_rows(file: Path, n: int, word: str, record: str | None = None) -> No
     raise DataError(f"{file}: only 1 data row ({word} {first}); a file needs at least 2 data rows to form a segment")
 
 
-def _check_header(file: Path, header: list[str], required: dict[str, str], delim: str | None) -> dict[str, int]:
-    """Every required column is in the header, once; returns each name's first position."""
+def _check_header(file: Path, header: list[str], required: dict[str, str], delim: str | None,
+                  line: int = 1) -> dict[str, int]:
+    """Every required column is in the header (on ``line``), once; returns each name's first position."""
     check_columns(header, required, source=str(file), delimiter=delim)
-    where = f"{file}, line 1:" if delim is not None else f"{file}:"
+    where = f"{file}, line {line}:" if delim is not None else f"{file}:"
     for name in required:
         at = [i + 1 for i, h in enumerate(header) if h == name]
         if len(at) > 1:
@@ -127,50 +128,126 @@ def _check_header(file: Path, header: list[str], required: dict[str, str], delim
     return {h: i for i, h in reversed(list(enumerate(header)))}
 
 
+@dataclass(frozen=True)
+class CsvLayout:
+    """How the spec says its CSV files are written: delimiter, decimal mark, encoding, the lines above the
+    header (``top``), a units row, a header at all. Line numbers in messages are the file's own."""
+
+    delim: str
+    decimal: str
+    encoding: str
+    top: int
+    header: bool
+    units_row: bool
+
+    @classmethod
+    def of(cls, spec: ImportSpec, file: Path) -> "CsvLayout":
+        encoding = "utf-8-sig" if spec.encoding.lower().replace("_", "-") in ("utf-8", "utf8") else spec.encoding
+        return cls(spec.delimiter_for(file), spec.decimal, encoding, spec.skip_lines, spec.header, spec.units_row)
+
+    @property
+    def first_line(self) -> int:
+        """The file line of the header (or, without one, of the first data row)."""
+        return self.top + 1
+
+    @property
+    def first_data_line(self) -> int:
+        return self.top + 1 + int(self.header) + int(self.units_row)
+
+    def skipped(self) -> list[int]:
+        """0-based file lines pandas skips: those above the header and the units row."""
+        return [*range(self.top), *([self.top + 1] if self.units_row else [])]
+
+    def undecodable(self, file: Path, exc: UnicodeDecodeError) -> DataError:
+        name = "UTF-8" if self.encoding == "utf-8-sig" else self.encoding
+        return DataError(
+            f"{file}: not {name} text ({exc.reason} at byte {exc.start}); set encoding = \"cp1252\" (Windows "
+            "exports; or the file's own encoding) in the spec, or save the file as UTF-8"
+        )
+
+
 def _read_csv(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str]) -> FileTable:
-    delim = spec.delimiter_for(file)
+    lay = CsvLayout.of(spec, file)
+    delim = lay.delim
     try:
-        with open(file, encoding="utf-8-sig", newline="") as fh:
+        with open(file, encoding=lay.encoding, newline="") as fh:
+            above = [fh.readline() for _ in range(lay.top)]
             first = fh.readline()
             second = fh.readline()
             third = fh.readline()
             rest_blank = not first.strip() and not second.strip() and not third.strip() and not fh.read(1 << 16).strip()
     except UnicodeDecodeError as exc:
-        raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
+        raise lay.undecodable(file, exc) from exc
+    if lay.top and not above[-1]:
+        n = sum(1 for a in above if a)
+        raise DataError(f"{file}: has {n} line{'s' if n != 1 else ''}, but skip_lines = {lay.top} skips the first "
+                        f"{lay.top}; set skip_lines to the number of lines above the header")
     if not first.strip():
         if rest_blank:
-            raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
-        raise DataError(f"{file}, line 1: blank; the header must be on line 1")
+            what = "the file is empty" if not lay.top else f"nothing after the {lay.top} skipped lines"
+            raise DataError(f"{file}: {what}; it needs a header line and at least 2 data rows")
+        where = f" (after skip_lines = {lay.top})" if lay.top else ""
+        raise DataError(f"{file}, line {lay.first_line}: blank; the header must be on line {lay.first_line}{where}")
     fields = [h.strip() for h in _fields(first, delim)]
     if not spec.header:
-        return _read_headerless(file, spec, required, text_cols, fields, delim)
+        return _read_headerless(file, spec, required, text_cols, fields, lay)
     header = fields
-    _no_header_hint(file, header, required, spec.decimal)
-    pos = _check_header(file, header, required, delim)
+    _no_header_hint(file, header, required, lay)
+    _header_below_hint(file, header, required, lay)
+    pos = _check_header(file, header, required, delim, lay.first_line)
     units: dict[str, str] = {}
-    if spec.units_row:
-        units = _units_row(file, header, _fields(second, delim) if second.strip() else [], delim)
+    if lay.units_row:
+        units = _units_row(file, header, _fields(second, delim) if second.strip() else [], lay.first_line + 1)
         second = third
     else:
-        _units_row_hint(file, header, pos, required, text_cols, second, third, delim, spec.decimal)
+        _units_row_hint(file, pos, required, text_cols, second, third, lay)
     first_texts = None
     if second.strip():
         first_texts = [f.strip() for f in _fields(second, delim)]
-    skip = 1 if spec.units_row else 0
-    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=True, skip=skip,
-                        decimal=spec.decimal)
-    return FileTable(raw, header, np.arange(2 + skip, len(raw) + 2 + skip), "line", units, first_texts, pos)
+    raw = _parse_fields(file, lay, header, pos, required, text_cols)
+    start = lay.first_data_line
+    return FileTable(raw, header, np.arange(start, len(raw) + start), "line", units, first_texts, pos)
+
+
+PREAMBLE_LINES = 50
+"""How far down a file the header is looked for when line 1 (after ``skip_lines``) is not it."""
+
+
+def _header_below_hint(file: Path, header: list[str], required: dict[str, str], lay: CsvLayout) -> None:
+    """The required columns not on the header line but together on a line below it: a preamble (test-bench
+    software writes one); say which line holds the header and what to set."""
+    if all(h in header for h in required):
+        return
+    try:
+        with open(file, encoding=lay.encoding, newline="") as fh:
+            for k in range(PREAMBLE_LINES + lay.top):
+                line = fh.readline()
+                if not line:
+                    return
+                if k <= lay.top:
+                    continue
+                for delim in (lay.delim, *(d for d in (",", ";", "\t", "|") if d != lay.delim)):
+                    if set(required) <= {f.strip() for f in _fields(line, delim)}:
+                        also = "" if delim == lay.delim else f" and delimiter = {json.dumps(delim)}"
+                        raise DataError(
+                            f"{file}, line {k + 1}: holds the header ({', '.join(repr(r) for r in list(required)[:3])}"
+                            f"{', ...' if len(required) > 3 else ''}), line {lay.first_line} does not: set "
+                            f"skip_lines = {k}{also} in the spec (the lines above the header are not read)"
+                        )
+    except UnicodeDecodeError:
+        return
 
 
 _BRACKETED = re.compile(r"^\s*[\[(](.*)[\])]\s*$")
 
 
-def _units_row(file: Path, header: list[str], fields: list[str], delim: str) -> dict[str, str]:
-    """Line 2 of a file with ``units_row``: each named field's unit ("[rpm]" and "(rpm)" read as "rpm")."""
+def _units_row(file: Path, header: list[str], fields: list[str], line: int) -> dict[str, str]:
+    """The units row (file ``line``) of a file with ``units_row``: each named field's unit ("[rpm]" and "(rpm)"
+    read as "rpm")."""
     if len(fields) != len(header):
         raise DataError(
-            f"{file}, line 2: the units row has {len(fields)} fields where the header has {len(header)}; "
-            "give every field a unit (blank for none), or remove units_row from the spec if line 2 is data"
+            f"{file}, line {line}: the units row has {len(fields)} fields where the header has {len(header)}; "
+            f"give every field a unit (blank for none), or remove units_row from the spec if line {line} is data"
         )
     units = {}
     for name, raw in zip(header, fields):
@@ -190,34 +267,35 @@ def _is_number(text: str, decimal: str) -> bool:
     return True
 
 
-def _units_row_hint(file: Path, header: list[str], pos: dict[str, int], required: dict[str, str],
-                    text_cols: list[str], second: str, third: str, delim: str, decimal: str) -> None:
-    """Line 2 holding text in every numeric column the spec reads while line 3 holds numbers: a units row the
-    spec does not declare; say so and what to set (instead of "'rpm' is not a number")."""
+def _units_row_hint(file: Path, pos: dict[str, int], required: dict[str, str], text_cols: list[str], second: str,
+                    third: str, lay: CsvLayout) -> None:
+    """The line under the header holding text in every numeric column the spec reads while the next holds
+    numbers: a units row the spec does not declare; say so and what to set (not "'rpm' is not a number")."""
     if not second.strip() or not third.strip():
         return
-    line2, line3 = _fields(second, delim), _fields(third, delim)
+    line2, line3 = _fields(second, lay.delim), _fields(third, lay.delim)
     numeric = [pos[c] for c in required if c not in text_cols and pos[c] < min(len(line2), len(line3))]
     if not numeric:
         return
     texts = [line2[i].strip() for i in numeric]
-    if any(_is_number(t, decimal) for t in texts if t) or not any(texts):
+    if any(_is_number(t, lay.decimal) for t in texts if t) or not any(texts):
         return
-    if not all(_is_number(line3[i], decimal) for i in numeric if line3[i].strip()):
+    if not all(_is_number(line3[i], lay.decimal) for i in numeric if line3[i].strip()):
         return
     shown = ", ".join(repr(t) for t in texts[:4]) + (", ..." if len(texts) > 4 else "")
+    at = lay.first_line + 1
     raise DataError(
-        f"{file}, line 2: text where the spec reads numbers ({shown}) and numbers on line 3: a units row? "
-        "set units_row = true in the spec (the units are then read from it)"
+        f"{file}, line {at}: text where the spec reads numbers ({shown}) and numbers on line {at + 1}: a units "
+        "row? set units_row = true in the spec (the units are then read from it)"
     )
 
 
-def _parse_fields(file: Path, delim: str, header: list[str], pos: dict[str, int], required: dict[str, str],
-                  text_cols: list[str], *, header_row: bool, skip: int = 0, decimal: str = ".") -> pd.DataFrame:
+def _parse_fields(file: Path, lay: CsvLayout, header: list[str], pos: dict[str, int], required: dict[str, str],
+                  text_cols: list[str]) -> pd.DataFrame:
     """The file's cells (``_parse_csv``), text columns as text; a float column that overflowed holds inf where
     the file holds text such as 1e309: it is re-read as text so that the error quotes the value as written."""
     text_pos = sorted({pos[c] for c in text_cols})
-    raw = _parse_csv(file, delim, len(header), text_pos, header_row=header_row, skip=skip, decimal=decimal)
+    raw = _parse_csv(file, lay, len(header), text_pos)
     overflow = [
         pos[c]
         for c in required
@@ -225,14 +303,13 @@ def _parse_fields(file: Path, delim: str, header: list[str], pos: dict[str, int]
         and pd.api.types.is_float_dtype(raw[f"c{pos[c]}"].dtype)
         and np.isinf(raw[f"c{pos[c]}"].to_numpy()).any()
     ]
-    if decimal != ".":  # a column pandas left as text (a bad cell in it) is checked with '.' decimals
+    if overflow:
+        raw = _parse_csv(file, lay, len(header), sorted(set(text_pos) | set(overflow)))
+    if lay.decimal != ".":  # a column pandas left as text (a bad cell in it) is checked with '.' decimals
         for c in required:
             col = f"c{pos[c]}"
             if pos[c] not in text_pos and not pd.api.types.is_numeric_dtype(raw[col].dtype):
-                raw[col] = raw[col].str.replace(decimal, ".", regex=False)
-    if overflow:
-        raw = _parse_csv(file, delim, len(header), sorted(set(text_pos) | set(overflow)), header_row=header_row,
-                         skip=skip, decimal=decimal)
+                raw[col] = raw[col].str.replace(lay.decimal, ".", regex=False)
     return raw
 
 
@@ -248,34 +325,35 @@ def _fields(line: str, delim: str) -> list[str]:
         csv.field_size_limit(limit)
 
 
-def _no_header_hint(file: Path, header: list[str], required: dict[str, str], decimal: str) -> None:
+def _no_header_hint(file: Path, header: list[str], required: dict[str, str], lay: CsvLayout) -> None:
     """A first line of numbers read as a header: the file has no header row; say so and what to set."""
     if all(h in header for h in required) or not header:
         return
-    if not all(_is_number(h, decimal) for h in header):
+    if not all(_is_number(h, lay.decimal) for h in header):
         return
     raise DataError(
-        f"{file}, line 1: holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), not column "
-        f"names: the file has no header row; set header = false in the spec (its {len(header)} fields are then named "
-        "in file order by names = [...], default the [columns] order)"
+        f"{file}, line {lay.first_line}: holds numbers ({', '.join(header[:3])}{', ...' if len(header) > 3 else ''}), "
+        f"not column names: the file has no header row; set header = false in the spec (its {len(header)} fields are "
+        "then named in file order by names = [...], default the [columns] order)"
     )
 
 
 def _read_headerless(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str], first: list[str],
-                     delim: str) -> FileTable:
-    """A file without a header row: its fields named by ``spec.names`` (else "field k"), data from line 1."""
+                     lay: CsvLayout) -> FileTable:
+    """A file without a header row: its fields named by ``spec.names`` (else "field k"), data from its first line."""
     header = [spec.field_name(i) for i in range(len(first))]
     missing = [c for c in required if c not in header]
     if missing:
         named = [n for n in spec.names if n]
         raise DataError(
-            f"{file}, line 1: {len(first)} fields, but with header = false {required[missing[0]]} {missing[0]!r} "
-            f"is field {_field_position(spec, missing[0])} of the files' names ({len(named)} named); "
+            f"{file}, line {lay.first_line}: {len(first)} fields, but with header = false {required[missing[0]]} "
+            f"{missing[0]!r} is field {_field_position(spec, missing[0])} of the files' names ({len(named)} named); "
             "give every field its name in file order (names = [...], or the [columns] order)"
         )
     pos = {h: i for i, h in enumerate(header)}
-    raw = _parse_fields(file, delim, header, pos, required, text_cols, header_row=False, decimal=spec.decimal)
-    return FileTable(raw, header, np.arange(1, len(raw) + 1), "line", {}, first, pos)
+    raw = _parse_fields(file, lay, header, pos, required, text_cols)
+    start = lay.first_data_line
+    return FileTable(raw, header, np.arange(start, len(raw) + start), "line", {}, first, pos)
 
 
 def _field_position(spec: ImportSpec, name: str) -> str:
@@ -283,8 +361,7 @@ def _field_position(spec: ImportSpec, name: str) -> str:
     return str(at[0]) if at else "?"
 
 
-def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, header_row: bool = True, skip: int = 0,
-               decimal: str = ".") -> pd.DataFrame:
+def _parse_csv(file: Path, lay: CsvLayout, n_fields: int, text_pos: list[int]) -> pd.DataFrame:
     """Every field by position; ``text_pos`` kept as text, the others parsed as numbers where they can be.
 
     Columns holding anything that is not a number come back as text, which
@@ -294,27 +371,27 @@ def _parse_csv(file: Path, delim: str, n_fields: int, text_pos: list[int], *, he
     try:
         return pd.read_csv(
             file,
-            sep=r"\s+" if delim == WHITESPACE else delim,
-            header=0 if header_row else None,
+            sep=r"\s+" if lay.delim == WHITESPACE else lay.delim,
+            header=0 if lay.header else None,
             names=[f"c{i}" for i in range(n_fields)],
             index_col=False,
             dtype={f"c{i}": str for i in text_pos},
             skip_blank_lines=False,
-            skiprows=[1] if skip else None,
-            decimal=decimal,
-            encoding="utf-8-sig",
+            skiprows=lay.skipped() or None,
+            decimal=lay.decimal,
+            encoding=lay.encoding,
         )
     except pd.errors.ParserError as exc:
         m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
         if m:
             raise DataError(
                 f"{file}, line {m.group(2)}: {m.group(3)} fields where the "
-                f"{'header' if header_row else 'first line'} has {m.group(1)} "
+                f"{'header' if lay.header else 'first line'} has {m.group(1)} "
                 "(a stray delimiter, or decimal commas: then set decimal = \",\" and the file's delimiter); fix the row"
             ) from exc
         raise DataError(f"{file}: cannot parse the CSV ({one_line(str(exc))}); check delimiter and quoting") from exc
     except UnicodeDecodeError as exc:
-        raise DataError(f"{file}: not UTF-8 text ({exc.reason} at byte {exc.start}); save the file as UTF-8") from exc
+        raise lay.undecodable(file, exc) from exc
 
 
 def _recorded_units(schema: pa.Schema) -> dict[str, str]:

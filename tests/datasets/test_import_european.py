@@ -118,3 +118,75 @@ def test_european_export_both_at_once(tmp_path):
     ds = import_table(spec)
     np.testing.assert_allclose(ds.frame["T_exh"].to_numpy(), np.round(rows[:, 2], 6), atol=1e-9)
     assert ds.schema["T_exh"].unit == "°C" and list(ds.frame[SEGMENT].unique()) == ["run"]
+
+
+PREAMBLE = "Test bench 3;;\nOperator: K.;;\nDate: 2026-01-02;;\n"
+
+
+def test_a_cp1252_export_with_a_preamble_reads_unmodified_and_keeps_file_line_numbers(tmp_path):
+    rows = data()
+    text = PREAMBLE + table(rows, ";", ",", units="s;1/min;°C")
+    (tmp_path / "run.csv").write_bytes(text.encode("cp1252"))
+    spec = tmp_path / "spec.toml"
+    spec.write_text('name = "bench"\ndt = 0.1\nfiles = ["run.csv"]\ntime = "t"\ndecimal = ","\nunits_row = true\n'
+                    'encoding = "cp1252"\nskip_lines = 3\n[columns]\nspeed = { role = "input" }\n'
+                    'T_exh = { role = "output" }\n')
+    ds = import_table(spec)
+    np.testing.assert_allclose(ds.frame["T_exh"].to_numpy(), np.round(rows[:, 2], 6), atol=1e-9)
+    assert ds.schema["T_exh"].unit == "°C" and ds.schema["speed"].unit == "1/min" and len(ds.frame) == len(rows)
+    bad = text.splitlines()
+    bad[12] = bad[12].rsplit(";", 1)[0] + ";hot"  # file line 13: 3 preamble lines, header, units row, 8th data row
+    (tmp_path / "run.csv").write_bytes(("\n".join(bad) + "\n").encode("cp1252"))
+    with pytest.raises(DataError, match=r"column 'T_exh', line 13: 'hot' is not a number"):
+        import_table(spec)
+    spec.write_text(spec.read_text().replace('encoding = "cp1252"\n', ""))
+    with pytest.raises(DataError) as err:
+        import_table(spec)
+    assert str(err.value).startswith(f"{tmp_path / 'run.csv'}: not UTF-8 text (invalid start byte at byte ")
+    assert str(err.value).endswith('set encoding = "cp1252" (Windows exports; or the file\'s own encoding) in the '
+                                   "spec, or save the file as UTF-8")
+
+
+def test_a_preamble_left_undeclared_or_longer_than_the_file_is_one_line(tmp_path):
+    text = PREAMBLE.replace(";;", ",,") + table(data(), ",", ".")
+    spec = write(tmp_path, "", text)
+    with pytest.raises(DataError) as err:
+        import_table(spec)
+    assert str(err.value) == (f"{tmp_path / 'run.csv'}, line 4: holds the header ('t', 'speed', 'T_exh'), line 1 "
+                              "does not: set skip_lines = 3 in the spec (the lines above the header are not read)")
+    spec = write(tmp_path, "skip_lines = 3", text)
+    assert len(import_table(spec).frame) == 40
+    spec = write(tmp_path, "skip_lines = 300", text)
+    with pytest.raises(DataError, match=r"run.csv: has 44 lines, but skip_lines = 300 skips the first 300; set "
+                                        r"skip_lines to the number of lines above the header"):
+        import_table(spec)
+
+
+def test_a_headerless_file_below_a_preamble_counts_lines_from_the_file_top(tmp_path):
+    rows = data()
+    text = "logger v2\n" + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n"
+    (tmp_path / "run.csv").write_text(text)
+    spec = tmp_path / "spec.toml"
+    spec.write_text('name = "bench"\ndt = 0.1\nfiles = ["run.csv"]\nheader = false\nskip_lines = 1\n'
+                    'names = ["", "speed", "T_exh"]\n' + COLUMNS)
+    ds = import_table(spec)
+    np.testing.assert_allclose(ds.frame["speed"].to_numpy(), np.round(rows[:, 1], 6), atol=1e-9)
+    lines = text.splitlines()
+    lines[4] = lines[4] + ",9"  # file line 5: one field too many
+    (tmp_path / "run.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"run.csv, line 5: 4 fields where the first line has 3"):
+        import_table(spec)
+
+
+def test_an_unknown_encoding_is_refused_in_the_spec(tmp_path):
+    spec = write(tmp_path, 'encoding = "klingon"', table(data(), ",", "."))
+    with pytest.raises(SpecError, match=r'encoding = "klingon" is not a text encoding Python knows; use e.g. '
+                                        r'"utf-8" \(the default\), "cp1252" or "latin-1"'):
+        import_table(spec)
+
+
+def test_a_preamble_above_a_header_of_another_delimiter_names_both_keys(tmp_path):
+    spec = write(tmp_path, "", PREAMBLE + table(data(), ";", "."))
+    with pytest.raises(DataError, match=r"run.csv, line 4: holds the header \('t', 'speed', 'T_exh'\), line 1 does "
+                                        r'not: set skip_lines = 3 and delimiter = ";" in the spec'):
+        import_table(spec)
