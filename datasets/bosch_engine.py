@@ -1,4 +1,4 @@
-"""Built-in importer of a real gasoline engine's test-bench campaign (Bosch Research, gengine2).
+"""Built-in importers of a real gasoline engine's test-bench campaigns (Bosch Research, gengine1 and gengine2).
 
 The publisher's files are read as they are distributed: one transient measurement per file
 ``raw_0000NN_measurement_000000.csv``, **no header row**, nine fields in a fixed order, 10 Hz.
@@ -12,11 +12,17 @@ file), so it goes through the same checks and messages as a user's spec.
   (zero mean and unit variance on their training set), so the unit is ``1``;
 - published split by measurement: train = measurements 0-15, test = 16-21; whichever of
   them the folder holds are imported (the copy in ``../shared/data`` has 13).
+
+gengine1 (``bosch-gengine1``) is the same engine's other campaign, read the same way: thirteen
+fields, inputs as above plus ``fuel_cutoff``, outputs ``pn``, ``co``, ``co2``, ``hc``, ``nox``,
+``o2``, ``t_manifold``, ``t_cat``; train = measurements 10-19 and 30-39, test = 53-65. A
+file of the folder outside a campaign's split is left out with a note.
 """
 
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,27 +32,66 @@ from enginebench.datasets.import_spec import spec_from_dict
 from enginebench.datasets.importer import import_spec
 from enginebench.errors import DataError
 
-NAME = "bosch-gengine2"
 FILE_PATTERN = re.compile(r"raw_(\d+)_measurement_\d+\.csv")
-FIELDS = (("speed", "input"), ("load", "input"), ("lambda", "input"), ("ignition", "input"),
-          ("pn", "output"), ("hc", "output"), ("nox", "output"), ("t_manifold", "output"), ("t_cat", "output"))
-"""The files' nine fields in order (the publisher's Speed, Load, Lambda, Ignition Angle, Particle
-Numbers, HC, NOx, Temperature exhaust manifold, Temperature catalyst 1), all standardised."""
-TRAIN_LAST = 15
-"""Measurements 0-15 are the publisher's training set, 16-21 the test set."""
 DT = 0.1
-LICENCE = "CC BY-SA 4.0 (attribute Bosch Research, Bosch-Engine-Datasets, gengine2; share derivatives alike)"
-META: dict[str, Any] = {
-    "description": "A real gasoline engine on a test bench (Bosch Research, gengine2): transient measurements at "
-                   "10 Hz; inputs speed, load, lambda, ignition angle; outputs particle number, HC, NOx, "
-                   "exhaust-manifold and catalyst temperatures, each standardised by the publisher.",
-    "provenance": "Bosch Research, Bosch-Engine-Datasets, gengine2 (github.com/boschresearch/Bosch-Engine-Datasets); "
-                  "contacts B. Rakitsch, C.-Y. Li",
-    "citation": "Bosch Research, \"Bosch-Engine-Datasets\" (gengine2), GitHub repository, commit 16d1bae",
-    "protocol": "train on measurements 0-15, test on 16-21 (the publisher's split); outputs are simulated from "
-                "the inputs alone",
-    "synthetic": False,
-}
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """One of the publisher's campaigns: its files' fields in order and its split by measurement number."""
+
+    name: str
+    key: str                                  # the publisher's folder and dataset name (gengine1, gengine2)
+    fields: tuple[tuple[str, str], ...]
+    train: frozenset[int]
+    test: frozenset[int]
+    published: str                            # the split as the publisher states it
+    inputs_text: str
+    outputs_text: str
+
+    @property
+    def licence(self) -> str:
+        return f"CC BY-SA 4.0 (attribute Bosch Research, Bosch-Engine-Datasets, {self.key}; share derivatives alike)"
+
+    def meta(self) -> dict[str, Any]:
+        return {
+            "description": f"A real gasoline engine on a test bench (Bosch Research, {self.key}): transient "
+                           f"measurements at 10 Hz; inputs {self.inputs_text}; outputs {self.outputs_text}, each "
+                           "standardised by the publisher.",
+            "provenance": f"Bosch Research, Bosch-Engine-Datasets, {self.key} "
+                          "(github.com/boschresearch/Bosch-Engine-Datasets); contacts B. Rakitsch, C.-Y. Li",
+            "citation": f"Bosch Research, \"Bosch-Engine-Datasets\" ({self.key}), GitHub repository, commit 16d1bae",
+            "protocol": f"{self.published} (the publisher's split); outputs are simulated from the inputs alone",
+            "synthetic": False,
+        }
+
+
+GENGINE2 = Campaign(
+    name="bosch-gengine2", key="gengine2",
+    fields=(("speed", "input"), ("load", "input"), ("lambda", "input"), ("ignition", "input"),
+            ("pn", "output"), ("hc", "output"), ("nox", "output"), ("t_manifold", "output"), ("t_cat", "output")),
+    train=frozenset(range(0, 16)), test=frozenset(range(16, 22)),
+    published="train on measurements 0-15, test on 16-21",
+    inputs_text="speed, load, lambda, ignition angle",
+    outputs_text="particle number, HC, NOx, exhaust-manifold and catalyst temperatures",
+)
+"""gengine2's nine fields in order (the publisher's Speed, Load, Lambda, Ignition Angle, Particle Numbers, HC,
+NOx, Temperature exhaust manifold, Temperature catalyst 1), all standardised; measurements 0-15 train, 16-21 test."""
+GENGINE1 = Campaign(
+    name="bosch-gengine1", key="gengine1",
+    fields=(("speed", "input"), ("load", "input"), ("lambda", "input"), ("ignition", "input"),
+            ("fuel_cutoff", "input"), ("pn", "output"), ("co", "output"), ("co2", "output"), ("hc", "output"),
+            ("nox", "output"), ("o2", "output"), ("t_manifold", "output"), ("t_cat", "output")),
+    train=frozenset([*range(10, 20), *range(30, 40)]), test=frozenset(range(53, 66)),
+    published="train on measurements 10-19 and 30-39, test on 53-65",
+    inputs_text="speed, load, lambda, ignition angle, fuel cutoff",
+    outputs_text="particle number, CO, CO2, HC, NOx, O2, exhaust-manifold and catalyst temperatures",
+)
+"""gengine1's thirteen fields in order (Speed, Load, Lambda, Ignition Angle, Fuel Cutoff, Particle Numbers, CO,
+CO2, HC, NOx, O2, Temperature exhaust manifold, Temperature catalyst 1), all standardised; measurements 10-19
+and 30-39 train, 53-65 test."""
+NAME = GENGINE2.name
+FIELDS = GENGINE2.fields
 
 
 def record_name(number: int) -> str:
@@ -61,50 +106,80 @@ def measurement_files(directory: Path) -> dict[int, Path]:
     return dict(sorted(found.items()))
 
 
-def import_gengine2(directory: str | Path) -> Dataset:
-    """The measurements of ``directory`` (the folder holding raw_0000NN_measurement_000000.csv)."""
+def import_campaign(campaign: Campaign, directory: str | Path) -> Dataset:
+    """The measurements of ``directory`` (the folder holding raw_0000NN_measurement_000000.csv) that lie in the
+    campaign's published split; a file outside it is left out with a note."""
     directory = Path(directory)
     if not directory.is_dir():
         raise DataError(f"{directory}: not a folder; pass the folder holding raw_0000NN_measurement_000000.csv "
                         "to --from")
-    files = measurement_files(directory)
-    train = [record_name(n) for n in files if n <= TRAIN_LAST]
-    test = [record_name(n) for n in files if n > TRAIN_LAST]
+    found = measurement_files(directory)
+    files = {n: p for n, p in found.items() if n in campaign.train or n in campaign.test}
+    train = [record_name(n) for n in files if n in campaign.train]
+    test = [record_name(n) for n in files if n in campaign.test]
     if not train or not test:
-        have = ", ".join(p.name for p in files.values()) or "no raw_*_measurement_*.csv file"
+        have = ", ".join(p.name for p in found.values()) or "no raw_*_measurement_*.csv file"
         raise DataError(
-            f"{directory}: the {NAME} import needs measurements of both sides of the publisher's split "
-            f"(train 0-{TRAIN_LAST}, test {TRAIN_LAST + 1}-21); found {have}"
+            f"{directory}: the {campaign.name} import needs measurements of both sides of the publisher's split "
+            f"({campaign.published}); found {have}"
         )
     doc = {
-        "name": NAME,
+        "name": campaign.name,
         "dt": DT,
         "header": False,
-        "licence": LICENCE,
-        "provenance": META["provenance"],
-        "columns": {name: {"role": role, "unit": "1"} for name, role in FIELDS},
+        "licence": campaign.licence,
+        "provenance": campaign.meta()["provenance"],
+        "columns": {name: {"role": role, "unit": "1"} for name, role in campaign.fields},
         "records": {record_name(n): {"file": p.name} for n, p in files.items()},
     }
-    ds = import_spec(spec_from_dict(doc, directory / f"[built-in {NAME} import]"))
-    meta = {k: v for k, v in META.items() if k != "provenance"}
+    ds = import_spec(spec_from_dict(doc, directory / f"[built-in {campaign.name} import]"))
+    meta = {k: v for k, v in campaign.meta().items() if k != "provenance"}
     meta["published_split"] = {"train": train, "test": test}
     meta["measurements"] = {record_name(n): p.name for n, p in files.items()}
+    outside = sorted(set(found) - set(files))
+    if outside:
+        meta["notes"] = [*ds.meta.get("notes", []), f"{len(outside)} file(s) outside the publisher's split left out: "
+                         + ", ".join(found[n].name for n in outside)]
     return ds.with_frame(ds.frame, **meta)
+
+
+def import_gengine2(directory: str | Path) -> Dataset:
+    """gengine2's measurements in ``directory``."""
+    return import_campaign(GENGINE2, directory)
+
+
+def import_gengine1(directory: str | Path) -> Dataset:
+    """gengine1's measurements in ``directory``."""
+    return import_campaign(GENGINE1, directory)
 
 
 DATASETS = (
     Builtin(
-        name=NAME,
+        name=GENGINE2.name,
         kind="real",
         description="A real gasoline engine on a test bench (Bosch Research, gengine2): transient measurements at "
                     "10 Hz, inputs speed, load, lambda, ignition; outputs pn, hc, nox, t_manifold, t_cat (all "
                     "standardised); published split by measurement (0-15 train, 16-21 test)",
         licence="CC BY-SA 4.0",
         importer=import_gengine2,
-        targets=("pn", "hc", "nox", "t_manifold", "t_cat"),
+        targets=tuple(n for n, role in GENGINE2.fields if role == "output"),
         notes={"import": "enginebench datasets import bosch-gengine2 --from DIR (the folder with the headerless "
                          "raw_0000NN_measurement_000000.csv files)"},
         order=3,
     ),
+    Builtin(
+        name=GENGINE1.name,
+        kind="real",
+        description="A real gasoline engine on a test bench (Bosch Research, gengine1): transient measurements at "
+                    "10 Hz, inputs speed, load, lambda, ignition, fuel_cutoff; outputs pn, co, co2, hc, nox, o2, "
+                    "t_manifold, t_cat (all standardised); published split by measurement (10-19 and 30-39 train, "
+                    "53-65 test)",
+        licence="CC BY-SA 4.0",
+        importer=import_gengine1,
+        targets=tuple(n for n, role in GENGINE1.fields if role == "output"),
+        notes={"import": "enginebench datasets import bosch-gengine1 --from DIR (the folder with the headerless "
+                         "raw_0000NN_measurement_000000.csv files)"},
+        order=3,
+    ),
 )
-"""The catalog's entry (``datasets/catalog.py`` finds it here)."""
+"""The catalog's entries (``datasets/catalog.py`` finds them here)."""

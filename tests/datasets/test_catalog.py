@@ -13,11 +13,11 @@ from enginebench.errors import DataError
 
 def test_every_builtin_is_found_in_the_module_that_declares_it_in_listing_order():
     found = catalog.builtin_datasets()
-    assert list(found) == ["gas-turbine-emissions", "silverbox", "f16-gvt", "bosch-gengine2", "turboshaft",
-                           "marine-diesel"]
+    assert list(found) == ["gas-turbine-emissions", "silverbox", "f16-gvt", "bosch-gengine1", "bosch-gengine2",
+                           "turboshaft", "marine-diesel"]
     assert found["silverbox"].importer.__module__ == "enginebench.datasets.sysid_benchmarks"
     assert found["gas-turbine-emissions"].importer.__module__ == "enginebench.datasets.gas_turbine.importer"
-    assert [b.kind for b in found.values()] == ["real"] * 4 + ["synthetic"] * 2
+    assert [b.kind for b in found.values()] == ["real"] * 5 + ["synthetic"] * 2
     assert "enginebench.datasets.marine_diesel" not in catalog._declaring_modules()  # heavy packages stay unread
 
 

@@ -160,3 +160,26 @@ def test_whitespace_separated_files_with_or_without_a_header(tmp_path):
     (tmp_path / "h.txt").write_text("speed   load  nox\n1 2 3\n4  5   6\n")
     ds = import_table(write(tmp_path, 'files = ["h.txt"]\ndelimiter = "whitespace"', {}))
     np.testing.assert_array_equal(column(ds, "load", "h"), [2.0, 5.0])
+
+
+def test_the_built_in_gengine1_import_reads_its_thirteen_fields_and_the_published_split(tmp_path):
+    """gengine1 as its publisher distributes it (headerless, 13 fields), here generated: measurements 10 and 31 are
+    training, 53 test, 40 outside the split (left out with a note)."""
+    from enginebench.datasets.bosch_engine import GENGINE1, import_gengine1
+
+    rng = np.random.default_rng(0)
+    written = {}
+    for n in (10, 31, 53, 40):
+        data = rng.standard_normal((30, 13))
+        (tmp_path / f"raw_{n:06d}_measurement_000000.csv").write_text(
+            "\n".join(",".join(f"{v:.8e}" for v in row) for row in data) + "\n")
+        written[n] = data
+    ds = import_gengine1(tmp_path)
+    assert ds.schema.inputs == ["speed", "load", "lambda", "ignition", "fuel_cutoff"]
+    assert ds.schema.outputs == ["pn", "co", "co2", "hc", "nox", "o2", "t_manifold", "t_cat"]
+    assert ds.meta["published_split"] == {"train": ["m10", "m31"], "test": ["m53"]}
+    assert ds.segment_ids == ["m10", "m31", "m53"]
+    got = ds.frame.loc[ds.frame[SEGMENT] == "m31", [name for name, _ in GENGINE1.fields]].to_numpy()
+    np.testing.assert_allclose(got, written[31], rtol=1e-8)
+    assert ds.meta["notes"][-1] == "1 file(s) outside the publisher's split left out: raw_000040_measurement_000000.csv"
+    assert "gengine1" in ds.meta["licence"]
