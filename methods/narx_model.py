@@ -289,23 +289,30 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
 
     # per-model matrices in the common layout: history part (2 ka_max rows: y, y^2 per lag, oldest first)
     # and input part ([u lags, u lags^2, 1] rows); padded centres have beta = 0 and contribute nothing
+    # the input part is the same for models that share centres and lags up to their scale s (the grid's gammas and
+    # lambdas on one draw of centres): one product per such group serves them all, scaled (``_input_groups``)
+    group, scale, firsts = _input_groups(models)
+    Q = len(firsts)
     Cy = np.zeros((G, 2 * ka_max, m_max))
-    Cu = np.zeros((G, 2 * du + 1, m_max))
+    Cu = np.zeros((Q, 2 * du + 1, m_max))
     beta = np.zeros((G, m_max, 1))
     for g, m in enumerate(models):
         s, k = m.s, len(m.beta)
-        cy, cu = m.centres[:, :m.ka], m.centres[:, m.ka:]
+        cy = m.centres[:, :m.ka]
         for i in range(1, m.ka + 1):  # lag i sits at history position ka_max - i
             p = ka_max - i
             Cy[g, 2 * p, :k] = 2 * s * cy[:, m.ka - i]
             Cy[g, 2 * p + 1, :k] = -s
+        beta[g, :k, 0] = m.beta
+    for q, g in enumerate(firsts):  # at unit scale
+        m = models[g]
+        k, cu = len(m.beta), m.centres[:, m.ka:]
         for j in range(c):
             for l in range(m.kb):
                 col = j * (lu + 1) + m.nk + l
-                Cu[g, col, :k] = 2 * s * cu[:, j * m.kb + l]
-                Cu[g, du + col, :k] = -s
-        Cu[g, 2 * du, :k] = -s * (m.centres ** 2).sum(axis=1)
-        beta[g, :k, 0] = m.beta
+                Cu[q, col, :k] = 2 * cu[:, j * m.kb + l]
+                Cu[q, du + col, :k] = -1.0
+        Cu[q, 2 * du, :k] = -(m.centres ** 2).sum(axis=1)
 
     # the linear part: output lags as a history product, inputs and constant precomputed for every step
     Ay = np.zeros((G, na_max, 1))
@@ -343,7 +350,7 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     E_buf = np.empty((G, S, m_max))
     y_buf = np.empty((G, S, 1))
     e1 = np.empty(m_max)
-    Cu2 = np.ascontiguousarray(Cu.transpose(1, 0, 2).reshape(2 * du + 1, G * m_max))
+    Cu2 = np.ascontiguousarray(Cu.transpose(1, 0, 2).reshape(2 * du + 1, Q * m_max))
     kh = na_max - ka_max  # the kernel's history starts this many rows after the linear part's
     # retirement: models are kept in positions; those still simulated are the prefix [0, Ga)
     perm = np.arange(G)  # position -> model
@@ -355,7 +362,11 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
         live = int(np.searchsorted(-sorted_len, -(t0 + 1), side="right"))  # segments with row t0
         # the input part of every step's exponent in the block, one 2-D product (BLAS): rows (segment, step),
         # columns (model, centre); a step then adds its row to the history product and takes one exp2
-        P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2[:, :Ga * m_max]).reshape(live, t1 - t0, Ga, m_max)
+        P = (Zu[:live, t0:t1].reshape(live * (t1 - t0), -1) @ Cu2).reshape(live, t1 - t0, Q, m_max)
+        if Q == G == Ga:  # every model its own group, none retired: the groups are the positions
+            P *= scale[:, None]
+        else:
+            P = P[:, :, group[:Ga]] * scale[:Ga, None]
         if Ga == 1 and live == 1:  # the common predict case, in 1-D operations (half the overhead)
             P1, V1, h1, H1 = P[0, :, 0], V[0, :, 0], Y[0, 0], H[0, 0]
             Cy1, beta1, ay1 = Cy[0], beta[0, :, 0], Ay[0, :, 0]
@@ -389,7 +400,7 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
                 np.clip(y[..., 0], y_lim[:Ga, 0, None], y_lim[:Ga, 1, None], out=H[:Ga, :live, na_max + t, 0])
                 np.square(H[:Ga, :live, na_max + t, 0], out=H[:Ga, :live, na_max + t, 1])
         if lim is not None and t1 < T:
-            Ga = _retire(Y, H, y_lim, Cy, Cu2, beta, Ay, V, perm, dead, lim, Ga, m_max, na_max + t0, na_max + t1,
+            Ga = _retire(Y, H, y_lim, Cy, group, scale, beta, Ay, V, perm, dead, lim, Ga, na_max + t0, na_max + t1,
                          int(np.searchsorted(-sorted_len, -(t1 + 1), side="right")))
             if Ga == 0:
                 break
@@ -398,9 +409,24 @@ def _free_run(models: Sequence[KernelModel], inputs: Sequence[np.ndarray], windo
     return out
 
 
-def _retire(Y: np.ndarray, H: np.ndarray, y_lim: np.ndarray, Cy: np.ndarray, Cu2: np.ndarray, beta: np.ndarray,
-            Ay: np.ndarray, V: np.ndarray, perm: np.ndarray, dead: np.ndarray, lim: np.ndarray, Ga: int, m: int,
-            r0: int, r1: int, live: int) -> int:
+def _input_groups(models: Sequence[KernelModel]) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """(group of each model, its scale s, each group's first model): models holding the same centres array with the
+    same lags have input parts equal up to their scale s = gamma / d / ln 2, so one product serves the group."""
+    keys: dict[tuple[int, int, int, int], int] = {}
+    firsts: list[int] = []
+    group = np.empty(len(models), dtype=np.int64)
+    for g, m in enumerate(models):
+        key = (id(m.centres), m.ka, m.kb, m.nk)
+        if key not in keys:
+            keys[key] = len(firsts)
+            firsts.append(g)
+        group[g] = keys[key]
+    return group, np.array([m.s for m in models], dtype=np.float64), firsts
+
+
+def _retire(Y: np.ndarray, H: np.ndarray, y_lim: np.ndarray, Cy: np.ndarray, group: np.ndarray, scale: np.ndarray,
+            beta: np.ndarray, Ay: np.ndarray, V: np.ndarray, perm: np.ndarray, dead: np.ndarray, lim: np.ndarray,
+            Ga: int, r0: int, r1: int, live: int) -> int:
     """Move the models that left their limits on every segment still running past the simulated prefix.
 
     Rows ``r0:r1`` of ``Y`` were just simulated. A model whose output left ``lim`` (lower,
@@ -419,11 +445,9 @@ def _retire(Y: np.ndarray, H: np.ndarray, y_lim: np.ndarray, Cy: np.ndarray, Cu2
     for p in np.flatnonzero(dead[:Ga, :live].all(axis=1))[::-1]:  # from the back: swaps keep earlier positions
         q = Ga - 1
         if p != q:
-            for arr in (Y, H, y_lim, Cy, beta, Ay, dead, lim, perm):
+            for arr in (Y, H, y_lim, Cy, group, scale, beta, Ay, dead, lim, perm):
                 arr[[p, q]] = arr[[q, p]]
             V[:, :, [p, q]] = V[:, :, [q, p]]
-            Cu2[:, p * m:(p + 1) * m], Cu2[:, q * m:(q + 1) * m] = Cu2[:, q * m:(q + 1) * m].copy(), \
-                Cu2[:, p * m:(p + 1) * m].copy()
         Ga -= 1
     return Ga
 

@@ -309,7 +309,7 @@ class SINDy(Method):
         listing("orders", ORDERS, "model orders searched: 1 (dy/dt = Theta(y, u) xi) and 2 (d2y/dt2 = "
                 "Theta(y, dy/dt, u) xi, which can oscillate)", items="float", searches=("order",), check=_orders),
         listing("degrees", (1, 2, 3), "polynomial degrees of the library searched", items="float", searches=("degree",),
-                edges="high", check=_degrees),
+                edges="high", check=_degrees, bound=(1.0, 5.0)),
         choice("threshold_scale", "relative", "STLSQ thresholds relative to the rms of each state's derivative, or "
                "absolute (per time_scale second, the turboshaft-moe paper's)", THRESHOLD_SCALES),
         span("threshold_range", None, "STLSQ thresholds searched (log grid); None = (0.01, 0.5) relative or "
