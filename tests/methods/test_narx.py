@@ -279,6 +279,39 @@ def test_models_that_leave_their_limits_are_retired_without_changing_any_run_up_
     assert diverged == 9  # three models on three segments: the retirement was exercised
 
 
+def test_models_sharing_centres_run_as_with_centres_of_their_own():
+    """free_run computes one input product per draw of centres and scales it per model: the grid's candidates
+    (gammas, lambdas, lags on two draws), some retired past their limits, run as the same models each holding a
+    copy of its centres (one product each) to 1e-12."""
+    from dataclasses import replace
+
+    from enginebench.methods.narx_model import KernelModel, free_run
+
+    rng = np.random.default_rng(5)
+    c = 2
+    models = []
+    for ka, kb in ((2, 2), (3, 1)):
+        centres = rng.normal(size=(9, ka + c * kb))
+        for gamma, a0 in ((0.1, 0.4), (1.0, 1.7), (3.0, 0.2), (0.5, 1.4)):  # a0 > 1 diverges: retired
+            models.append(KernelModel(na=3, nb=2, nk=1, ka=ka, kb=kb, a=np.array([a0, 0.1, 0.0]),
+                                      b=rng.normal(size=(c, 2)) * 0.3, c0=0.01, centres=centres,
+                                      beta=rng.normal(size=9) * 0.2, gamma=gamma, lam=1e-6, target=0))
+    own = [replace(m, centres=m.centres.copy()) for m in models]
+    lengths = [300, 180]
+    U = [rng.normal(size=(n, c)) for n in lengths]
+    W = [rng.normal(size=(5, 1)) for _ in lengths]
+    limits = np.tile([-30.0, 30.0], (len(models), 1))
+    for lim in (None, limits):
+        shared, alone = free_run(models, U, W, lengths, lim), free_run(own, U, W, lengths, lim)
+        for g in range(len(models)):
+            for s_, n in enumerate(lengths):
+                run = alone[g, s_, :n]
+                out = np.flatnonzero(~(np.abs(run) <= 30.0))
+                stop = n if lim is None or not out.size else out[0] + 1
+                np.testing.assert_allclose(shared[g, s_, :stop], run[:stop], rtol=1e-12, atol=1e-12)
+    assert sum(np.any(~(np.abs(alone[g, :, :180]) <= 30.0)) for g in range(len(models))) >= 2  # retirement ran
+
+
 def test_the_linear_basis_solves_like_gelsd_with_full_rank_and_without():
     """LinearBasis: back substitution on a full-rank Phi and the minimum-norm gelsd on a rank-deficient one give
     LAPACK gelsd's least-squares solution; the projection leaves nothing in Phi's span."""
