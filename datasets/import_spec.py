@@ -79,6 +79,7 @@ KEYS = Declaration(
              check=_delimiter, type_label="str | None"),
     choice("decimal", ".", "the CSV files' decimal mark: \",\" for files written with a decimal comma", DECIMALS,
            message='{name} must be "." or ",", got {value}'),
+    text("sheet", None, "with Excel workbooks (.xlsx): the sheet read; default the first"),
     text("encoding", "utf-8", "the CSV files' text encoding (\"cp1252\" or \"latin-1\" for many Windows exports)"),
     whole("skip_lines", 0, "lines above the header (or, with header = false, above the data) that are not read: "
           "a test bench's preamble", low=0, unit="lines"),
@@ -154,6 +155,7 @@ class ImportSpec:
     units_row: bool = False
     encoding: str = "utf-8"
     skip_lines: int = 0
+    sheet: str | None = None
 
     def field_name(self, position: int) -> str:
         """The name of a headerless file's field at 0-based ``position``."""
@@ -515,4 +517,5 @@ def spec_from_dict(doc: Mapping[str, Any], path: Path) -> ImportSpec:
         units_row=units_row,
         encoding=encoding,
         skip_lines=int(v["skip_lines"]),
+        sheet=v["sheet"],
     )

@@ -5,7 +5,8 @@ relative to the spec file. Every key::
 
     name = "my-engine"                 # required: the dataset's name
     dt = 1.0                           # required: sample period, seconds
-    files = ["run1.csv", "run2.csv"]   # CSV (.csv .txt .tsv .dat) or Parquet (.parquet .pq); each file is a
+    files = ["run1.csv", "run2.csv"]   # CSV (.csv .txt .tsv .dat), Parquet (.parquet .pq) or Excel (.xlsx .xlsm,
+                                       # datasets/excel.py); each file is a
                                        # record (a segment) named after its stem. Optional when [records] is given.
                                        # A name with * ? [ is a glob: its matches, in sorted order
     header = false                     # optional (default true): the CSV files have no header row; their fields
@@ -24,6 +25,7 @@ relative to the spec file. Every key::
     delimiter = ","                    # optional (default ",", or tab for .tsv files); "whitespace": runs of spaces/tabs
     decimal = ","                      # optional (default "."): a decimal comma; the delimiter then defaults to ";"
     encoding = "cp1252"                # optional (default "utf-8"): the CSV files' text encoding
+    sheet = "data"                     # optional, Excel workbooks (.xlsx .xlsm): the sheet read (default the first)
     skip_lines = 3                     # optional (default 0): a preamble above the header, not read
     units_row = true                   # optional: the line under the header holds the fields' units (not data); a
                                        # column declared without a unit takes the file's, a different one is an error

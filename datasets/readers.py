@@ -29,6 +29,7 @@ from enginebench.errors import DataError
 
 CSV_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
 PARQUET_SUFFIXES = (".parquet", ".pq")
+EXCEL_SUFFIXES = (".xlsx", ".xlsm")  # read by datasets/excel.py (openpyxl, imported there on use)
 
 
 # -- how each file is read ---------------------------------------------------------------------
@@ -435,6 +436,41 @@ def _read_parquet(file: Path, spec: ImportSpec, required: dict[str, str], times:
     return FileTable(frame, header, np.arange(1, len(frame) + 1), "row", _recorded_units(schema), None, pos)
 
 
+def _read_excel(file: Path, spec: ImportSpec, required: dict[str, str], text_cols: list[str]) -> FileTable:
+    """One sheet of a workbook (``datasets/excel.py``), read as a CSV file is; rows numbered as Excel shows them."""
+    from enginebench.datasets.excel import cell_text, read_sheet
+
+    cells, rows = read_sheet(file, spec)
+    if spec.header:
+        header = [cell_text(v) for v in cells.iloc[0]]
+        pos = _check_header(file, header, required, None)
+    else:
+        header = [spec.field_name(i) for i in range(cells.shape[1])]
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise DataError(f"{file}, row {rows[0]}: {cells.shape[1]} columns, but with header = false "
+                            f"{required[missing[0]]} {missing[0]!r} is field {_field_position(spec, missing[0])} "
+                            "of the files' names; give every column its name in order (names = [...], or the "
+                            "[columns] order)")
+        pos = {h: i for i, h in enumerate(header)}
+    units: dict[str, str] = {}
+    start = int(spec.header) + int(spec.units_row)
+    if spec.units_row:
+        for name, raw in zip(header, cells.iloc[1] if len(cells) > 1 else []):
+            unit = cell_text(raw)
+            m = _BRACKETED.match(unit)
+            unit = m.group(1).strip() if m else unit
+            if name and unit:
+                units[name] = unit
+    data = cells.iloc[start:].reset_index(drop=True)
+    too_few_rows(file, len(data), "row")
+    text_pos = {pos[c] for c in text_cols}
+    raw = pd.DataFrame({f"c{i}": (data[i].map(lambda v: None if pd.isna(v) else str(v)) if i in text_pos
+                                  else data[i]) for i in range(data.shape[1])})
+    first_texts = [cell_text(v) for v in data.iloc[0]]
+    return FileTable(raw, header, rows[start:], "row", units, first_texts, pos)
+
+
 def read_file(file: Path, spec: ImportSpec, uses: list[FileUse]) -> FileTable:
     """Read ``file`` once, with every column the ways it is read (``uses``) need."""
     rec = uses[0].record
@@ -455,11 +491,14 @@ def read_file(file: Path, spec: ImportSpec, uses: list[FileUse]) -> FileTable:
     if suffix in PARQUET_SUFFIXES:
         times = [t for t in (u.time(spec) for u in uses) if t is not None]
         return _read_parquet(file, spec, required, times)
+    if suffix in EXCEL_SUFFIXES:
+        return _read_excel(file, spec, required, text)
     if suffix in CSV_SUFFIXES:
         if file.stat().st_size == 0:
             raise DataError(f"{file}: the file is empty; it needs a header line and at least 2 data rows")
         return _read_csv(file, spec, required, text)
     raise DataError(
-        f"{file}: unsupported file type {suffix or '(none)'!r}; give CSV ({', '.join(CSV_SUFFIXES)}) "
-        f"or Parquet ({', '.join(PARQUET_SUFFIXES)}) files"
+        f"{file}: unsupported file type {suffix or '(none)'!r}; give CSV ({', '.join(CSV_SUFFIXES)}), "
+        f"Parquet ({', '.join(PARQUET_SUFFIXES)}) or Excel ({', '.join(EXCEL_SUFFIXES)}) files"
+        + ("; save an .xls workbook as .xlsx" if suffix == ".xls" else "")
     )

@@ -29,7 +29,7 @@ GOOD = DATA / "good"
 
 ALLOWED = (
     "name, dt, columns, files, header, names, records, time, time_unit, gap_tolerance, segment, record, rate_column, "
-    "period_column, delimiter, decimal, encoding, skip_lines, units_row, provenance, licence, min_segment_rows, drop_short_segments, dt_tolerance, physical_model"
+    "period_column, delimiter, decimal, sheet, encoding, skip_lines, units_row, provenance, licence, min_segment_rows, drop_short_segments, dt_tolerance, physical_model"
 )
 CASES: dict[str, tuple[type[EngineBenchError], str]] = {
     "wrong_delimiter": (
