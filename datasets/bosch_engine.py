@@ -46,6 +46,7 @@ class Campaign:
     train: frozenset[int]
     test: frozenset[int]
     published: str                            # the split as the publisher states it
+    split_short: str                          # the same in a catalog line
     inputs_text: str
     outputs_text: str
 
@@ -71,7 +72,7 @@ GENGINE2 = Campaign(
     fields=(("speed", "input"), ("load", "input"), ("lambda", "input"), ("ignition", "input"),
             ("pn", "output"), ("hc", "output"), ("nox", "output"), ("t_manifold", "output"), ("t_cat", "output")),
     train=frozenset(range(0, 16)), test=frozenset(range(16, 22)),
-    published="train on measurements 0-15, test on 16-21",
+    published="train on measurements 0-15, test on 16-21", split_short="0-15 train, 16-21 test",
     inputs_text="speed, load, lambda, ignition angle",
     outputs_text="particle number, HC, NOx, exhaust-manifold and catalyst temperatures",
 )
@@ -84,6 +85,7 @@ GENGINE1 = Campaign(
             ("nox", "output"), ("o2", "output"), ("t_manifold", "output"), ("t_cat", "output")),
     train=frozenset([*range(10, 20), *range(30, 40)]), test=frozenset(range(53, 66)),
     published="train on measurements 10-19 and 30-39, test on 53-65",
+    split_short="10-19 and 30-39 train, 53-65 test",
     inputs_text="speed, load, lambda, ignition angle, fuel cutoff",
     outputs_text="particle number, CO, CO2, HC, NOx, O2, exhaust-manifold and catalyst temperatures",
 )
@@ -153,33 +155,23 @@ def import_gengine1(directory: str | Path) -> Dataset:
     return import_campaign(GENGINE1, directory)
 
 
-DATASETS = (
-    Builtin(
-        name=GENGINE2.name,
+def _builtin(campaign: Campaign, importer: Any) -> Builtin:
+    """A campaign's catalog entry, described from its fields and split."""
+    names = {role: ", ".join(n for n, r in campaign.fields if r == role) for role in ("input", "output")}
+    return Builtin(
+        name=campaign.name,
         kind="real",
-        description="A real gasoline engine on a test bench (Bosch Research, gengine2): transient measurements at "
-                    "10 Hz, inputs speed, load, lambda, ignition; outputs pn, hc, nox, t_manifold, t_cat (all "
-                    "standardised); published split by measurement (0-15 train, 16-21 test)",
+        description=f"A real gasoline engine on a test bench (Bosch Research, {campaign.key}): transient measurements "
+                    f"at 10 Hz, inputs {names['input']}; outputs {names['output']} (all standardised); published "
+                    f"split by measurement ({campaign.split_short})",
         licence="CC BY-SA 4.0",
-        importer=import_gengine2,
-        targets=tuple(n for n, role in GENGINE2.fields if role == "output"),
-        notes={"import": "enginebench datasets import bosch-gengine2 --from DIR (the folder with the headerless "
+        importer=importer,
+        targets=tuple(n for n, role in campaign.fields if role == "output"),
+        notes={"import": f"enginebench datasets import {campaign.name} --from DIR (the folder with the headerless "
                          "raw_0000NN_measurement_000000.csv files)"},
         order=3,
-    ),
-    Builtin(
-        name=GENGINE1.name,
-        kind="real",
-        description="A real gasoline engine on a test bench (Bosch Research, gengine1): transient measurements at "
-                    "10 Hz, inputs speed, load, lambda, ignition, fuel_cutoff; outputs pn, co, co2, hc, nox, o2, "
-                    "t_manifold, t_cat (all standardised); published split by measurement (10-19 and 30-39 train, "
-                    "53-65 test)",
-        licence="CC BY-SA 4.0",
-        importer=import_gengine1,
-        targets=tuple(n for n, role in GENGINE1.fields if role == "output"),
-        notes={"import": "enginebench datasets import bosch-gengine1 --from DIR (the folder with the headerless "
-                         "raw_0000NN_measurement_000000.csv files)"},
-        order=3,
-    ),
-)
+    )
+
+
+DATASETS = (_builtin(GENGINE2, import_gengine2), _builtin(GENGINE1, import_gengine1))
 """The catalog's entries (``datasets/catalog.py`` finds them here)."""

@@ -250,6 +250,11 @@ def _units_row(file: Path, header: list[str], fields: list[str], line: int) -> d
             f"{file}, line {line}: the units row has {len(fields)} fields where the header has {len(header)}; "
             f"give every field a unit (blank for none), or remove units_row from the spec if line {line} is data"
         )
+    return _units_of(header, fields)
+
+
+def _units_of(header: list[str], fields: list[str]) -> dict[str, str]:
+    """Each named field's unit from a units row's texts ("[rpm]" and "(rpm)" read as "rpm"; blank: none)."""
     units = {}
     for name, raw in zip(header, fields):
         unit = raw.strip()
@@ -453,15 +458,8 @@ def _read_excel(file: Path, spec: ImportSpec, required: dict[str, str], text_col
                             "of the files' names; give every column its name in order (names = [...], or the "
                             "[columns] order)")
         pos = {h: i for i, h in enumerate(header)}
-    units: dict[str, str] = {}
     start = int(spec.header) + int(spec.units_row)
-    if spec.units_row:
-        for name, raw in zip(header, cells.iloc[1] if len(cells) > 1 else []):
-            unit = cell_text(raw)
-            m = _BRACKETED.match(unit)
-            unit = m.group(1).strip() if m else unit
-            if name and unit:
-                units[name] = unit
+    units = _units_of(header, [cell_text(v) for v in cells.iloc[1]]) if spec.units_row and len(cells) > 1 else {}
     data = cells.iloc[start:].reset_index(drop=True)
     too_few_rows(file, len(data), "row")
     text_pos = {pos[c] for c in text_cols}

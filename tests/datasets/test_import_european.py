@@ -54,11 +54,15 @@ def test_a_decimal_comma_undeclared_names_the_key_to_set(tmp_path):
                               '(a decimal comma? set decimal = "," in the import spec); fix or remove the value')
 
 
-def test_a_decimal_comma_with_a_comma_delimiter_is_refused_in_the_spec(tmp_path):
-    spec = write(tmp_path, 'decimal = ","\ndelimiter = ","', table(data(), ";", ","))
-    with pytest.raises(SpecError, match=r'decimal = "," with delimiter = ","; a decimal comma needs another '
-                                        r'delimiter: set delimiter = ";"'):
-        import_table(spec)
+@pytest.mark.parametrize("head, message", [
+    ('decimal = ","\ndelimiter = ","', r'decimal = "," with delimiter = ","; a decimal comma needs another '
+                                      r'delimiter: set delimiter = ";"'),
+    ('encoding = "klingon"', r'encoding = "klingon" is not a text encoding Python knows; use e.g. "utf-8" '
+                             r'\(the default\), "cp1252" or "latin-1"'),
+])
+def test_a_layout_the_files_cannot_have_is_refused_in_the_spec(tmp_path, head, message):
+    with pytest.raises(SpecError, match=message):
+        import_table(write(tmp_path, head, table(data(), ";", ",")))
 
 
 def test_a_bad_cell_in_a_decimal_comma_file_is_reported_at_its_line(tmp_path):
@@ -175,13 +179,6 @@ def test_a_headerless_file_below_a_preamble_counts_lines_from_the_file_top(tmp_p
     lines[4] = lines[4] + ",9"  # file line 5: one field too many
     (tmp_path / "run.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(DataError, match=r"run.csv, line 5: 4 fields where the first line has 3"):
-        import_table(spec)
-
-
-def test_an_unknown_encoding_is_refused_in_the_spec(tmp_path):
-    spec = write(tmp_path, 'encoding = "klingon"', table(data(), ",", "."))
-    with pytest.raises(SpecError, match=r'encoding = "klingon" is not a text encoding Python knows; use e.g. '
-                                        r'"utf-8" \(the default\), "cp1252" or "latin-1"'):
         import_table(spec)
 
 
